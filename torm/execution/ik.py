@@ -1,0 +1,124 @@
+"""Inverse kinematics with mink on a robot-only MuJoCo model.
+
+The IK model holds the robot alone (no free object bodies: they enlarge the QP). mink raises
+nothing for an unreachable target and just stops short, so :meth:`IKSolver.solve` checks the final
+residual and reports it; :class:`UnreachableError` is raised by callers that require convergence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mink
+import mujoco
+import numpy as np
+
+from torm.errors import ConfigError, ExecutionError
+
+
+class UnreachableError(ExecutionError):
+    """No joint configuration within the limits puts the TCP at the requested pose."""
+
+
+@dataclass(frozen=True)
+class IKConfig:
+    """IK settings. Tolerances in m and rad; ``dt`` is the integration step of the velocity QP (s)."""
+
+    pos_tol: float = 1e-3
+    rot_tol: float = 1e-2
+    max_iters: int = 200
+    dt: float = 0.05
+    damping: float = 1e-3
+    lm_damping: float = 1e-3
+    posture_cost: float = 1e-2
+    solver: str = "daqp"
+
+    def __post_init__(self) -> None:
+        if self.pos_tol <= 0 or self.rot_tol <= 0 or self.dt <= 0 or self.max_iters < 1:
+            raise ConfigError("IKConfig: tolerances, dt and max_iters must be positive")
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """Arm joints ``q`` (n,) rad, residual position (m) / rotation (rad) errors, and whether both are in tolerance."""
+
+    q: np.ndarray
+    pos_err: float
+    rot_err: float
+    converged: bool
+    iters: int
+
+
+class IKSolver:
+    """Solve for arm joints that put ``tcp_site`` at a world pose.
+
+    Args:
+        model: a MuJoCo model of the robot alone, base at the world origin.
+        joint_names: the arm joints solved for, in order; other joints stay at their initial values.
+        tcp_site: the site whose pose is controlled.
+        config: tolerances and solver settings.
+    """
+
+    def __init__(self, model: mujoco.MjModel, joint_names: tuple[str, ...], tcp_site: str,
+                 config: IKConfig | None = None) -> None:
+        self.model = model
+        self.config = config or IKConfig()
+        self.joint_names = tuple(joint_names)
+        missing = [j for j in self.joint_names if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) < 0]
+        if missing:
+            raise ConfigError(f"IK model has no joint(s) {missing}")
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, tcp_site) < 0:
+            raise ConfigError(f"IK model has no site {tcp_site!r}")
+        self.tcp_site = tcp_site
+        self._qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in self.joint_names])
+        self.configuration = mink.Configuration(model)
+        self._frame = mink.FrameTask(tcp_site, "site", position_cost=1.0, orientation_cost=1.0,
+                                     lm_damping=self.config.lm_damping)
+        self._posture = mink.PostureTask(model, cost=self.config.posture_cost)
+        self._limits = [mink.ConfigurationLimit(model)]
+
+    def forward(self, q_arm: np.ndarray) -> np.ndarray:
+        """TCP pose (4, 4) in the world for arm joints ``q_arm`` (n,) rad."""
+        q = self.configuration.q.copy()
+        q[self._qadr] = q_arm
+        self.configuration.update(q)
+        return self.configuration.get_transform_frame_to_world(self.tcp_site, "site").as_matrix()
+
+    def solve(self, T_world_tcp: np.ndarray, q_init: np.ndarray, q_posture: np.ndarray | None = None) -> IKResult:
+        """Joints reaching ``T_world_tcp`` (4, 4), starting from ``q_init`` (n,) rad; never raises for unreachable."""
+        cfg = self.config
+        q = self.configuration.q.copy()
+        q[self._qadr] = q_init
+        self.configuration.update(q)
+        q_post = q.copy()
+        if q_posture is not None:
+            q_post[self._qadr] = q_posture
+        self._posture.set_target(q_post)
+        self._frame.set_target(mink.SE3.from_matrix(np.asarray(T_world_tcp, float)))
+        pos_err = rot_err = np.inf
+        it = 0
+        while it < cfg.max_iters:
+            it += 1
+            vel = mink.solve_ik(self.configuration, [self._frame, self._posture], cfg.dt, cfg.solver,
+                                damping=cfg.damping, limits=self._limits)
+            self.configuration.integrate_inplace(vel, cfg.dt)
+            err = self._frame.compute_error(self.configuration)
+            pos_err, rot_err = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+            if not np.all(np.isfinite(err)):
+                break
+            if pos_err < cfg.pos_tol and rot_err < cfg.rot_tol:
+                break
+        q_out = self.configuration.q[self._qadr].copy()
+        ok = bool(np.isfinite(pos_err) and pos_err < cfg.pos_tol and rot_err < cfg.rot_tol)
+        return IKResult(q_out, pos_err, rot_err, ok, it)
+
+    def solve_or_raise(self, T_world_tcp: np.ndarray, q_init: np.ndarray, what: str = "target") -> np.ndarray:
+        """Like :meth:`solve` but raise :class:`UnreachableError` naming ``what`` and the residual."""
+        res = self.solve(T_world_tcp, q_init)
+        if not res.converged:
+            p = np.round(np.asarray(T_world_tcp)[:3, 3], 4).tolist()
+            raise UnreachableError(
+                f"{what} at {p} m is unreachable: IK residual {res.pos_err * 1000:.1f} mm / "
+                f"{np.degrees(res.rot_err):.1f} deg after {res.iters} iterations"
+            )
+        return res.q
