@@ -1,0 +1,1 @@
+"""MuJoCo side of torm: robot models and configs, scenes, simulated cameras and the simulated backend."""

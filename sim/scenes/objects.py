@@ -1,0 +1,207 @@
+"""Object library: the paper's glass objects (plus an opaque ceramic cup) with realistic sizes.
+
+All objects fit an 85 mm parallel-jaw gripper (narrowest footprint width <= 70 mm). Each object is a
+watertight trimesh in its own frame (z up, lowest point at z = 0, footprint centred on x = y = 0).
+Mass = mesh volume x density (glass 2500 kg/m^3, ceramic 2300 kg/m^3); the inertia tensor comes
+from the same mesh (trimesh, uniform density), so simulated mass properties match the geometry.
+
+Collision geometry (``collision`` field):
+
+- ``"sphere"``: a sphere primitive (the ball: rolls and rests like a real sphere);
+- ``"convex"``: the mesh's own convex hull. Used for convex solids (cylinder, cube, hexagonal prism,
+  pyramidal frustum, ice cube) and for the lidded toothpick box, whose cavity is closed and so
+  unreachable; CoACD would only return the same hull;
+- ``"coacd"``: CoACD convex decomposition, cached on disk (see :mod:`sim.scenes.hulls`). Used where
+  concavities matter: the open cup (a ball dropped in must stay inside) and the heart's notch.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import trimesh
+
+from sim.scenes import meshes
+from sim.scenes.hulls import convex_decomposition
+from torm.errors import UnknownNameError
+
+GLASS_DENSITY = 2500.0  # kg/m^3 (soda-lime glass)
+CERAMIC_DENSITY = 2300.0  # kg/m^3 (porcelain/stoneware)
+
+Material = Literal["glass", "opaque"]
+Collision = Literal["sphere", "convex", "coacd"]
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectAsset:
+    """One library object. ``mesh`` is in the object frame (m); derived mass properties in kg, m, kg m^2."""
+
+    name: str
+    shape: str  # geometry id (objects sharing a shape share meshes and cached hulls, e.g. cup / opaque_cup)
+    mesh: trimesh.Trimesh
+    material: Material
+    density: float  # kg/m^3
+    collision: Collision
+    description: str = ""
+
+    @property
+    def transparent(self) -> bool:
+        """True for glass objects (rendered in geom group 2; opaque ones in group 4)."""
+        return self.material == "glass"
+
+    @property
+    def volume(self) -> float:
+        """Material volume (m^3); for the cup and the toothpick box the cavity is excluded."""
+        return float(self.mesh.volume)
+
+    @property
+    def mass(self) -> float:
+        """Mass (kg) = volume x density."""
+        return self.volume * self.density
+
+    @property
+    def com(self) -> np.ndarray:
+        """Centre of mass (3,) in the object frame (m)."""
+        return np.asarray(self.mesh.center_mass, dtype=np.float64)
+
+    @property
+    def inertia_3x3(self) -> np.ndarray:
+        """Inertia tensor (3, 3) about the centre of mass, object-frame axes (kg m^2)."""
+        return np.asarray(self.mesh.moment_inertia, dtype=np.float64) * self.density
+
+    @property
+    def height(self) -> float:
+        """Height above the table when standing upright (m)."""
+        return float(self.mesh.bounds[1, 2])
+
+    @property
+    def footprint_kx2(self) -> np.ndarray:
+        """Convex footprint polygon (k, 2), counter-clockwise, object frame (m)."""
+        return footprint_polygon(self.mesh)
+
+    @property
+    def width(self) -> float:
+        """Footprint width (m): diameter of the circle with the footprint's area (cylinder 60 mm)."""
+        return float(2.0 * np.sqrt(polygon_area(self.footprint_kx2) / np.pi))
+
+    def collision_hulls(self) -> list[trimesh.Trimesh]:
+        """Convex collision pieces in the object frame (cached; CoACD only for ``collision == "coacd"``)."""
+        return list(_collision_hulls(self.name))
+
+
+def footprint_polygon(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Counter-clockwise convex hull (k, 2) of the mesh vertices projected on the xy plane (m)."""
+    pts = np.unique(np.round(np.asarray(mesh.vertices)[:, :2], 9), axis=0)
+    return _convex_hull_2d(pts)
+
+
+def _convex_hull_2d(pts_nx2: np.ndarray) -> np.ndarray:
+    """Andrew's monotone chain; returns counter-clockwise hull vertices (k, 2)."""
+    pts = sorted(map(tuple, pts_nx2))
+
+    def cross(o: tuple, a: tuple, b: tuple) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list[tuple] = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    upper: list[tuple] = []
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
+
+
+def polygon_area(poly_kx2: np.ndarray) -> float:
+    """Signed area (m^2) of a polygon (positive when counter-clockwise)."""
+    x, y = poly_kx2[:, 0], poly_kx2[:, 1]
+    return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+@dataclass(frozen=True)
+class _Entry:
+    shape: str
+    make: Callable[[], trimesh.Trimesh]
+    material: Material
+    density: float
+    collision: Collision
+    description: str
+
+
+_CUP_MESH = functools.partial(meshes.open_cup, radius=0.035, height=0.090, wall=0.003, bottom=0.006)
+
+_LIBRARY: dict[str, _Entry] = {
+    "cylinder": _Entry("cylinder", functools.partial(meshes.cylinder, 0.030, 0.100), "glass", GLASS_DENSITY,
+                       "convex", "solid glass cylinder, r 30 mm, h 100 mm"),
+    "cup": _Entry("cup", _CUP_MESH, "glass", GLASS_DENSITY, "coacd",
+                  "open-top glass cup, r 35 mm, h 90 mm, 3 mm wall, 6 mm base"),
+    "opaque_cup": _Entry("cup", _CUP_MESH, "opaque", CERAMIC_DENSITY, "coacd",
+                         "opaque ceramic cup, same geometry as 'cup'"),
+    "ball": _Entry("ball", functools.partial(meshes.ball, 0.030), "glass", GLASS_DENSITY, "sphere",
+                   "solid glass ball, r 30 mm"),
+    "cube": _Entry("cube", functools.partial(meshes.box, (0.050, 0.050, 0.050)), "glass", GLASS_DENSITY, "convex",
+                   "solid glass cube, 50 mm"),
+    "hexagonal_prism": _Entry("hexagonal_prism", functools.partial(meshes.cylinder, 0.030, 0.080, 6), "glass",
+                              GLASS_DENSITY, "convex",
+                              "solid glass hexagonal prism, 60 mm across corners (52 mm across flats), h 80 mm"),
+    "pyramidal_frustum": _Entry("pyramidal_frustum", functools.partial(meshes.frustum, 0.060, 0.030, 0.060), "glass",
+                                GLASS_DENSITY, "convex",
+                                "solid glass square frustum, base 60 mm, top 30 mm, h 60 mm"),
+    "heart": _Entry("heart", functools.partial(meshes.heart, 0.050, 0.025), "glass", GLASS_DENSITY, "coacd",
+                    "solid glass heart lying flat, 50 mm wide, 25 mm thick"),
+    "ice_cube": _Entry("ice_cube", functools.partial(meshes.rounded_box, 0.035, 0.006), "glass", GLASS_DENSITY,
+                       "convex", "solid glass ice cube, 35 mm, 6 mm edge radius"),
+    "toothpick_box": _Entry("toothpick_box", functools.partial(meshes.closed_box_shell, (0.060, 0.040, 0.080), 0.003),
+                            "glass", GLASS_DENSITY, "convex",
+                            "closed (lidded) glass toothpick box, 60 x 40 x 80 mm, 3 mm walls"),
+}
+
+
+def list_objects() -> list[str]:
+    """Names of all library objects, sorted."""
+    return sorted(_LIBRARY)
+
+
+@functools.cache
+def _shape_mesh(name: str) -> trimesh.Trimesh:
+    return _LIBRARY[name].make()
+
+
+def get_object(name: str) -> ObjectAsset:
+    """The library object ``name``; raises UnknownNameError listing valid names."""
+    if name not in _LIBRARY:
+        raise UnknownNameError("object", name, _LIBRARY)
+    e = _LIBRARY[name]
+    return ObjectAsset(name=name, shape=e.shape, mesh=_shape_mesh(name).copy(), material=e.material,
+                       density=e.density, collision=e.collision, description=e.description)
+
+
+@functools.cache
+def _collision_hulls(name: str) -> tuple[trimesh.Trimesh, ...]:
+    e = _LIBRARY[name]
+    mesh = _shape_mesh(name)
+    if e.collision == "coacd":
+        return tuple(convex_decomposition(e.shape, mesh))
+    if e.collision == "convex":
+        return (mesh.convex_hull,)
+    return ()  # "sphere": the world builder adds a primitive
+
+
+def build_hull_cache(write_repo_cache: bool = True) -> dict[str, int]:
+    """(Re)build the CoACD hull cache of every "coacd" shape; returns {shape: number of hulls}.
+
+    Run after changing a mesh or the CoACD parameters, then commit ``sim/scenes/hull_cache/``:
+    ``python -c "from sim.scenes.objects import build_hull_cache; print(build_hull_cache())"``.
+    """
+    out: dict[str, int] = {}
+    for name, e in _LIBRARY.items():
+        if e.collision == "coacd" and e.shape not in out:
+            out[e.shape] = len(convex_decomposition(e.shape, _shape_mesh(name), write_repo_cache=write_repo_cache))
+    return out

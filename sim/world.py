@@ -1,0 +1,458 @@
+"""Build a MuJoCo world for a scenario: table, floor, lights, the robot at the origin, settled objects.
+
+Frames and units: world = robot base frame, z up, metres, radians, seconds, kilograms; the table top
+surface is z = 0. Geom groups (CONTEXT conventions): 0 environment visuals (the table geom also
+collides), 1 robot visuals, 2 glass object visuals, 3 collision geoms, 4 opaque object visuals.
+
+Objects are free bodies ``obj<k>_<name>`` (k = 1-based position in the scenario's object list = the
+instance id in masks). Each has one visual mesh geom ``obj<k>_<name>_visual`` (contype/conaffinity
+0) and collision geoms ``obj<k>_<name>_col<i>`` (group 3). The body frame is the library object
+frame (lowest point at z = 0, footprint centred), with mass and inertia set explicitly from the mesh.
+
+:func:`build_world` samples a layout from ``seed``, builds the model with MjSpec, lets the objects
+settle under gravity, verifies the result (nothing tipped, slid or fell off, no interpenetration, no
+MuJoCo warnings) and re-samples the layout when the check fails. The settled state is what
+:meth:`World.reset` restores.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+import trimesh
+
+from sim.scenes.objects import ObjectAsset, get_object
+from sim.scenes.placement import Placement, PlacementConfig, place_objects
+from sim.scenes.scenario import Scenario, get_scenario
+from torm.errors import ConfigError, SceneError
+
+if TYPE_CHECKING:
+    from sim.robot_config import RobotConfig
+
+log = logging.getLogger(__name__)
+
+TABLE_HEIGHT = 0.0  # z of the table top surface (m)
+WORKSPACE_BOUNDS = np.array([[0.33, -0.22, -0.005], [0.77, 0.22, 0.20]])  # reconstruction box (m)
+FLOOR_Z = -0.75  # floor below the table top (m)
+TABLE_X = (-0.45, 1.25)  # table top extent (m); the robot base at the origin sits on it
+TABLE_Y = (-0.90, 0.90)
+TABLE_THICKNESS = 0.04
+
+GROUP_ENV, GROUP_ROBOT, GROUP_GLASS, GROUP_COLLISION, GROUP_OPAQUE = 0, 1, 2, 3, 4
+GLASS_RGBA = (0.86, 0.93, 0.96, 0.3)
+CERAMIC_RGBA = (0.93, 0.92, 0.88, 1.0)
+OBJECT_FRICTION = (0.5, 0.005, 0.0001)  # glass on wood/glass (sliding, torsional, rolling)
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Build/settle parameters (s, m, deg). The defaults suit every scenario of the shipped suites."""
+
+    settle_time: float = 0.6  # physics time to let the objects come to rest (s)
+    drop_height: float = 0.0005  # objects start this far above the table (m)
+    max_settle_shift: float = 0.004  # allowed xy slide while settling (m)
+    max_settle_tilt_deg: float = 3.0  # allowed tilt of the object's z axis while settling (deg)
+    max_penetration: float = 0.002  # deepest allowed contact penetration after settling (m)
+    max_resamples: int = 20  # layouts to try before giving up
+    timestep: float = 0.002  # s
+
+    def __post_init__(self) -> None:
+        for name in ("settle_time", "timestep"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"WorldConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("drop_height", "max_settle_shift", "max_settle_tilt_deg", "max_penetration"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"WorldConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.max_resamples < 1:
+            raise ConfigError(f"WorldConfig.max_resamples must be >= 1, got {self.max_resamples}")
+
+
+@dataclass(eq=False)
+class WorldObject:
+    """One object instance in a built world.
+
+    Attributes:
+        instance_id: k, 1-based position in the scenario object list (= mask value).
+        name: library object name (e.g. "cup").
+        body_name: MuJoCo body name ``obj<k>_<name>``.
+        body_id: MuJoCo body id.
+        visual_geom_ids: ids of the rendered geoms (group 2 glass or 4 opaque).
+        collision_geom_ids: ids of the collision geoms (group 3).
+        mass: kg.
+        transparent: True for glass.
+        mesh: the object's trimesh in its body frame (m).
+        placement: the sampled table pose (x, y, yaw) before settling.
+    """
+
+    instance_id: int
+    name: str
+    body_name: str
+    body_id: int
+    visual_geom_ids: tuple[int, ...]
+    collision_geom_ids: tuple[int, ...]
+    mass: float
+    transparent: bool
+    mesh: trimesh.Trimesh
+    placement: Placement
+    _world: World | None = field(default=None, repr=False)
+
+    @property
+    def T_world_obj(self) -> np.ndarray:
+        """(4, 4) current pose of the body frame in the world (from ``data.qpos``)."""
+        if self._world is None:
+            raise SceneError(f"object {self.body_name} is not attached to a world")
+        return self._world.object_pose(self.instance_id)
+
+
+@dataclass(eq=False)
+class World:
+    """A built, settled scene. ``data`` is live; :meth:`reset` restores the settled state.
+
+    Attributes:
+        model, data, spec: MuJoCo model, data and the MjSpec they were compiled from.
+        scenario: scenario name; ``scenario_spec`` the full :class:`Scenario`.
+        seed: the layout seed.
+        objects: one :class:`WorldObject` per scenario object, ordered by instance id.
+        table_height: z of the table top (m), 0.0.
+        workspace_bounds: (2, 3) reconstruction box [[x, y, z]_min, [x, y, z]_max] (m).
+        geom_to_instance: (ngeom,) int32, geom id -> instance id k (0 for non-object geoms).
+        robot: robot name or None; ``robot_config`` its RobotConfig (None without a robot).
+        layout_attempts: layouts sampled until one settled cleanly (1 = first try).
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    spec: mujoco.MjSpec
+    scenario: str
+    scenario_spec: Scenario
+    seed: int
+    objects: tuple[WorldObject, ...]
+    geom_to_instance: np.ndarray
+    robot: str | None = None
+    robot_config: RobotConfig | None = None
+    layout_attempts: int = 1
+    table_height: float = TABLE_HEIGHT
+    workspace_bounds: np.ndarray = field(default_factory=lambda: WORKSPACE_BOUNDS.copy())
+    _settled: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+
+    def _obj(self, k: int) -> WorldObject:
+        if not 1 <= k <= len(self.objects):
+            raise SceneError(f"instance id {k} is out of range; this world has objects 1..{len(self.objects)}")
+        return self.objects[k - 1]
+
+    def object_pose(self, k: int) -> np.ndarray:
+        """(4, 4) current ``T_world_obj`` of instance ``k`` (1-based), read from the free joint in ``data.qpos``."""
+        o = self._obj(k)
+        adr = self.model.jnt_qposadr[self.model.body_jntadr[o.body_id]]
+        q = self.data.qpos[adr:adr + 7]
+        T = np.eye(4)
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, q[3:7])
+        T[:3, :3] = mat.reshape(3, 3)
+        T[:3, 3] = q[:3]
+        return T
+
+    def object_meshes_world(self) -> list[trimesh.Trimesh]:
+        """Each object's mesh in the world frame at its current pose (instance order), e.g. for GT metrics."""
+        return [o.mesh.copy().apply_transform(self.object_pose(o.instance_id)) for o in self.objects]
+
+    def reset(self) -> None:
+        """Restore the settled state (qpos, zero velocities, robot controls at home) and run mj_forward."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = self._settled["qpos"]
+        self.data.qvel[:] = 0.0
+        self.data.ctrl[:] = self._settled["ctrl"]
+        if self.model.na:
+            self.data.act[:] = self._settled["act"]
+        mujoco.mj_forward(self.model, self.data)
+
+
+# ------------------------------------------------------------------------------------------------ build
+def _yaw_quat(yaw: float) -> list[float]:
+    return [float(np.cos(yaw / 2.0)), 0.0, 0.0, float(np.sin(yaw / 2.0))]
+
+
+def _enable_multiccd(spec: mujoco.MjSpec) -> None:
+    """Multi-point convex contacts (needed to hold glass): an enable flag in older MuJoCo, default-on since 3.x."""
+    if hasattr(mujoco.mjtEnableBit, "mjENBL_MULTICCD"):
+        spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_MULTICCD)
+    if hasattr(mujoco.mjtDisableBit, "mjDSBL_MULTICCD"):
+        spec.option.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_MULTICCD)
+
+
+def _setup_scene(spec: mujoco.MjSpec, cfg: WorldConfig) -> None:
+    """Options, visuals, materials, floor, table and lights (m, rad)."""
+    spec.modelname = "torm_world"
+    spec.compiler.degree = False
+    spec.option.timestep = cfg.timestep
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = 10.0
+    _enable_multiccd(spec)
+    spec.visual.global_.offwidth = 1280
+    spec.visual.global_.offheight = 720
+    spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
+    spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
+    spec.visual.headlight.specular = [0.2, 0.2, 0.2]
+    spec.stat.center = [0.55, 0.0, 0.0]
+    spec.stat.extent = 1.0
+
+    spec.add_texture(name="table_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                     rgb1=[0.62, 0.52, 0.40], rgb2=[0.50, 0.41, 0.31], width=512, height=512,
+                     mark=mujoco.mjtMark.mjMARK_EDGE, markrgb=[0.35, 0.30, 0.24])
+    table_mat = spec.add_material(name="table_mat", rgba=[1, 1, 1, 1], texrepeat=[17, 18], texuniform=False,
+                                  specular=0.2, shininess=0.2, reflectance=0.0)
+    table_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "table_tex"
+    spec.add_texture(name="floor_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                     rgb1=[0.30, 0.32, 0.35], rgb2=[0.24, 0.26, 0.28], width=256, height=256)
+    floor_mat = spec.add_material(name="floor_mat", texrepeat=[8, 8], texuniform=True, reflectance=0.0)
+    floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "floor_tex"
+    spec.add_material(name="glass_mat", rgba=list(GLASS_RGBA), specular=1.0, shininess=1.0, reflectance=0.15)
+    spec.add_material(name="ceramic_mat", rgba=list(CERAMIC_RGBA), specular=0.4, shininess=0.5, reflectance=0.0)
+    spec.add_material(name="leg_mat", rgba=[0.35, 0.35, 0.37, 1], specular=0.3)
+
+    wb = spec.worldbody
+    wb.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], pos=[0, 0, FLOOR_Z],
+                material="floor_mat", group=GROUP_ENV)
+    half = [(TABLE_X[1] - TABLE_X[0]) / 2, (TABLE_Y[1] - TABLE_Y[0]) / 2, TABLE_THICKNESS / 2]
+    centre = [(TABLE_X[0] + TABLE_X[1]) / 2, (TABLE_Y[0] + TABLE_Y[1]) / 2, TABLE_HEIGHT - TABLE_THICKNESS / 2]
+    # the table top both renders (group 0) and collides; objects and the robot stand on it
+    wb.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=half, pos=centre, material="table_mat",
+                group=GROUP_ENV, friction=[0.6, 0.005, 0.0001])
+    leg_h = (TABLE_HEIGHT - TABLE_THICKNESS - FLOOR_Z) / 2
+    for i, (sx, sy) in enumerate([(-1, -1), (-1, 1), (1, -1), (1, 1)]):
+        wb.add_geom(name=f"table_leg{i}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.03, leg_h],
+                    pos=[centre[0] + sx * (half[0] - 0.06), sy * (half[1] - 0.06), FLOOR_Z + leg_h],
+                    material="leg_mat", group=GROUP_ENV, contype=0, conaffinity=0)
+    wb.add_light(name="key_light", pos=[0.9, -0.6, 1.6], dir=[-0.35, 0.4, -1.0], diffuse=[0.55, 0.55, 0.55],
+                 specular=[0.4, 0.4, 0.4], castshadow=True, type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    wb.add_light(name="fill_light", pos=[0.2, 0.8, 1.4], dir=[0.3, -0.6, -1.0], diffuse=[0.3, 0.3, 0.3],
+                 specular=[0.2, 0.2, 0.2], castshadow=False, type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+
+
+def _add_object_assets(spec: mujoco.MjSpec, assets: list[ObjectAsset]) -> None:
+    """Add each distinct shape's visual mesh and collision hull meshes once."""
+    done: set[str] = set()
+    for a in assets:
+        if a.shape in done:
+            continue
+        done.add(a.shape)
+        spec.add_mesh(name=f"{a.shape}_visual", uservert=a.mesh.vertices.ravel().tolist(),
+                      userface=a.mesh.faces.ravel().tolist())
+        for i, h in enumerate(a.collision_hulls()):
+            spec.add_mesh(name=f"{a.shape}_hull{i}", uservert=h.vertices.ravel().tolist(),
+                          userface=h.faces.ravel().tolist())
+
+
+def _add_object(spec: mujoco.MjSpec, k: int, a: ObjectAsset, pose: Placement, drop: float) -> None:
+    body = spec.worldbody.add_body(name=f"obj{k}_{a.name}", pos=[pose.x, pose.y, TABLE_HEIGHT + drop],
+                                   quat=_yaw_quat(pose.yaw))
+    body.add_freejoint(name=f"obj{k}_{a.name}_free")
+    I = a.inertia_3x3
+    body.explicitinertial = True
+    body.mass = a.mass
+    body.ipos = a.com.tolist()
+    body.fullinertia = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+    body.add_geom(name=f"obj{k}_{a.name}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"{a.shape}_visual",
+                  material="glass_mat" if a.transparent else "ceramic_mat",
+                  group=GROUP_GLASS if a.transparent else GROUP_OPAQUE, contype=0, conaffinity=0, density=0.0)
+    common = dict(group=GROUP_COLLISION, friction=list(OBJECT_FRICTION), density=0.0, rgba=[0.9, 0.4, 0.2, 0.5])
+    if a.collision == "sphere":
+        r = float(a.mesh.bounds[1, 2] / 2.0)
+        body.add_geom(name=f"obj{k}_{a.name}_col0", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0],
+                      pos=[0, 0, r], **common)
+    else:
+        for i in range(len(a.collision_hulls())):
+            body.add_geom(name=f"obj{k}_{a.name}_col{i}", type=mujoco.mjtGeom.mjGEOM_MESH,
+                          meshname=f"{a.shape}_hull{i}", **common)
+
+
+def _new_spec(robot: str | Path | None):
+    """A fresh spec, holding the robot at the world origin (names unprefixed) when ``robot`` is given.
+
+    The robot MJCF is loaded as the base spec rather than ``attach``-ed with an empty prefix: the result is
+    the same model (robot base at the origin, joint/actuator/site names exactly as in its robot.yaml) but
+    without MuJoCo's "empty prefix" warning on every build. Its <option> is reset to MuJoCo defaults so the
+    scene's physics settings do not depend on the robot file. Returns (spec, RobotConfig or None).
+    """
+    if robot is None:
+        return mujoco.MjSpec(), None
+    try:
+        from sim.robot_config import load_robot_config
+    except ImportError as exc:  # pragma: no cover - depends on the robot package being present
+        raise SceneError(f"robot {robot!r} requested but sim.robot_config is unavailable ({exc}); "
+                         "pass robot=None for an object-only scene") from exc
+    rcfg = load_robot_config(robot, validate=False)
+    try:
+        spec = mujoco.MjSpec.from_file(str(rcfg.mjcf))
+    except ValueError as exc:
+        raise SceneError(f"robot {robot!r}: cannot parse {rcfg.mjcf}: {exc}") from exc
+    fresh = mujoco.MjSpec().option
+    for attr in [a for a in dir(fresh) if not a.startswith("_")]:
+        with contextlib.suppress(AttributeError, TypeError):  # read-only attributes of newer MuJoCo versions
+            setattr(spec.option, attr, getattr(fresh, attr))
+    return spec, rcfg
+
+
+def _set_robot_home(model: mujoco.MjModel, data: mujoco.MjData, rcfg) -> None:
+    for j, a, q in zip(rcfg.arm.joints, rcfg.arm.actuators, rcfg.arm.home, strict=True):
+        data.qpos[model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]] = q
+        data.ctrl[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a)] = q
+    data.ctrl[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, rcfg.gripper.actuator)] = \
+        rcfg.gripper.command_range[0]
+
+
+def _warnings(data: mujoco.MjData) -> dict[str, int]:
+    return {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number > 0}
+
+
+def _tilt_deg(T: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(T[2, 2], -1.0, 1.0))))
+
+
+def _settle_problems(world: World, poses0: list[np.ndarray], cfg: WorldConfig) -> list[str]:
+    """Reasons the settled state is unacceptable (empty list = fine)."""
+    problems = []
+    d = world.data
+    warn = _warnings(d)
+    if warn:
+        problems.append(f"MuJoCo warnings {warn}")
+    ws = world.workspace_bounds
+    for o, T0 in zip(world.objects, poses0, strict=True):
+        T = o.T_world_obj
+        shift = float(np.linalg.norm(T[:2, 3] - T0[:2, 3]))
+        tilt = _tilt_deg(T)
+        if not np.all(np.isfinite(T)):
+            problems.append(f"object {o.instance_id} ({o.name}) state is not finite")
+        elif T[2, 3] < TABLE_HEIGHT - 0.01 or not (ws[0, 0] <= T[0, 3] <= ws[1, 0] and ws[0, 1] <= T[1, 3] <= ws[1, 1]):
+            problems.append(f"object {o.instance_id} ({o.name}) left the table/workspace (at {T[:3, 3].round(3)})")
+        elif shift > cfg.max_settle_shift or tilt > cfg.max_settle_tilt_deg:
+            problems.append(f"object {o.instance_id} ({o.name}) moved {shift * 1e3:.1f} mm / tilted {tilt:.1f} deg")
+    g2i = world.geom_to_instance
+    for c in d.contact[: d.ncon]:
+        k1, k2 = int(g2i[c.geom1]), int(g2i[c.geom2])
+        if k1 and k2 and k1 != k2:
+            problems.append(f"objects {k1} and {k2} touch")
+        if (k1 or k2) and c.dist < -cfg.max_penetration:
+            problems.append(f"object {k1 or k2} penetrates by {-c.dist * 1e3:.1f} mm")
+    return problems
+
+
+def _compile(spec: mujoco.MjSpec, where: str) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    try:
+        model = spec.compile()
+    except ValueError as exc:
+        raise SceneError(f"{where}: the scene does not compile: {exc}") from exc
+    return model, mujoco.MjData(model)
+
+
+def build_world(
+    scenario: str | Scenario,
+    seed: int = 0,
+    robot: str | Path | None = "inovo_2f85",
+    *,
+    config: WorldConfig | None = None,
+    placement: PlacementConfig | None = None,
+) -> World:
+    """Build, settle and verify the scene for ``scenario`` with the layout drawn from ``seed``.
+
+    Args:
+        scenario: scenario name (see ``sim.scenes.scenario.list_scenarios()``) or a Scenario.
+        seed: layout seed (x, y, yaw of every object); the same seed gives the same world.
+        robot: robot folder name / robot.yaml path attached at the world origin, or None for no robot.
+        config: build and settle parameters.
+        placement: placement parameters (gap rules, workspace rectangle).
+
+    Raises:
+        SceneError: when no layout settles cleanly within ``config.max_resamples`` layouts.
+    """
+    cfg = config or WorldConfig()
+    sc = get_scenario(scenario)
+    rng = np.random.default_rng(seed)
+    assets = [get_object(n) for n in sc.objects]
+    t0 = time.perf_counter()
+    attempts = 1 if sc.poses is not None else cfg.max_resamples
+    last: list[str] = []
+    for attempt in range(1, attempts + 1):
+        poses = place_objects(sc, rng, placement)
+        spec, rcfg = _new_spec(robot)
+        _setup_scene(spec, cfg)
+        _add_object_assets(spec, assets)
+        for k, (a, p) in enumerate(zip(assets, poses, strict=True), start=1):
+            _add_object(spec, k, a, p, cfg.drop_height)
+        model, data = _compile(spec, f"scenario {sc.name!r}")
+        if rcfg is not None:
+            rcfg.validate_against(model)
+            _set_robot_home(model, data, rcfg)
+        objects, g2i = _object_records(model, sc, assets, poses)
+        world = World(model=model, data=data, spec=spec, scenario=sc.name, scenario_spec=sc, seed=seed,
+                      objects=objects, geom_to_instance=g2i, robot=None if robot is None else str(robot),
+                      robot_config=rcfg, layout_attempts=attempt)
+        for o in objects:
+            o._world = world
+        mujoco.mj_forward(model, data)
+        poses0 = [o.T_world_obj for o in objects]
+        n_steps = int(round(cfg.settle_time / model.opt.timestep))
+        mujoco.mj_step(model, data, nstep=max(n_steps, 1))
+        mujoco.mj_forward(model, data)
+        last = _settle_problems(world, poses0, cfg)
+        if not last:
+            world._settled = {"qpos": data.qpos.copy(), "ctrl": data.ctrl.copy(), "act": data.act.copy()}
+            world.reset()
+            log.debug("built %s seed %d in %.2f s (%d layout(s))", sc.name, seed, time.perf_counter() - t0, attempt)
+            return world
+        log.info("scenario %s seed %d layout %d rejected: %s", sc.name, seed, attempt, "; ".join(last))
+    raise SceneError(f"scenario {sc.name!r} seed {seed}: no layout settled cleanly in {attempts} attempt(s); "
+                     f"last problems: {'; '.join(last)}")
+
+
+def _object_records(
+    model: mujoco.MjModel, sc: Scenario, assets: list[ObjectAsset], poses: list[Placement]
+) -> tuple[tuple[WorldObject, ...], np.ndarray]:
+    g2i = np.zeros(model.ngeom, dtype=np.int32)
+    out = []
+    for k, (a, p) in enumerate(zip(assets, poses, strict=True), start=1):
+        bname = f"obj{k}_{a.name}"
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, bname)
+        gids = np.nonzero(model.geom_bodyid == bid)[0]
+        g2i[gids] = k
+        vis = tuple(int(g) for g in gids if model.geom_group[g] in (GROUP_GLASS, GROUP_OPAQUE))
+        col = tuple(int(g) for g in gids if model.geom_group[g] == GROUP_COLLISION)
+        out.append(WorldObject(instance_id=k, name=a.name, body_name=bname, body_id=int(bid), visual_geom_ids=vis,
+                               collision_geom_ids=col, mass=float(model.body_mass[bid]), transparent=a.transparent,
+                               mesh=a.mesh, placement=p))
+    return tuple(out), g2i
+
+
+def check_world(world: World, seconds: float = 1.0, max_move: float = 0.005) -> dict[str, float]:
+    """Step a copy of ``world.data`` for ``seconds``; raise SceneError on MuJoCo warnings or objects moving.
+
+    Returns ``{"max_move_m": ..., "max_tilt_deg": ...}`` over all objects. ``world.data`` is untouched.
+    """
+    m = world.model
+    d = copy.copy(world.data)
+    start = [world.object_pose(o.instance_id) for o in world.objects]
+    mujoco.mj_step(m, d, nstep=max(1, int(round(seconds / m.opt.timestep))))
+    warn = _warnings(d)
+    if warn:
+        raise SceneError(f"scenario {world.scenario!r} seed {world.seed}: MuJoCo warnings while stepping: {warn}")
+    moves, tilts = [0.0], [0.0]
+    for o, T0 in zip(world.objects, start, strict=True):
+        adr = m.jnt_qposadr[m.body_jntadr[o.body_id]]
+        pos = d.qpos[adr:adr + 3]
+        moves.append(float(np.linalg.norm(pos - T0[:3, 3])))
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, d.qpos[adr + 3:adr + 7])
+        tilts.append(_tilt_deg(mat.reshape(3, 3)))
+    if max(moves) > max_move:
+        k = int(np.argmax(moves))  # index into [0.0] + objects
+        raise SceneError(f"scenario {world.scenario!r} seed {world.seed}: object {k} moved {moves[k] * 1e3:.1f} mm "
+                         f"in {seconds} s (limit {max_move * 1e3:.1f} mm)")
+    return {"max_move_m": max(moves), "max_tilt_deg": max(tilts)}
