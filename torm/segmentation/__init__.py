@@ -1,0 +1,66 @@
+"""Silhouette extraction: per-view instance masks for a capture (paper Sec. III-A).
+
+Segmenters (``make_segmenter(name, config)``):
+    ``gt``            the simulator's instance masks stored in the capture;
+    ``noisy``         those masks corrupted by a seeded error model (presets none/mild/moderate/severe/paper);
+    ``grounded_sam``  Grounding DINO + SAM on onnxruntime from user-supplied ONNX files.
+
+Each returns a :class:`SegmentationResult` ((V, H, W) int32 masks, detections, timings, quality vs GT
+when available); ``result.apply(capture)`` attaches the masks. :mod:`torm.segmentation.multiview` turns
+the masks into union silhouettes and can flag views inconsistent with the others.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from torm.config import from_dict
+from torm.errors import ConfigError, UnknownNameError
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter, segment_capture
+from torm.segmentation.gt import GTConfig, GTSegmenter
+from torm.segmentation.noise import PRESETS, NoiseConfig, NoisyConfig, NoisySegmenter, corrupt_masks
+from torm.segmentation.quality import mask_quality
+
+#: registry name -> (config class, segmenter class); grounded_sam is imported lazily (onnxruntime).
+SEGMENTERS = ("gt", "noisy", "grounded_sam")
+
+
+def segmenter_config_class(name: str) -> type:
+    """The frozen config dataclass of segmenter ``name``."""
+    if name == "gt":
+        return GTConfig
+    if name == "noisy":
+        return NoisyConfig
+    if name == "grounded_sam":
+        from torm.segmentation.grounded_sam import GroundedSAMConfig
+
+        return GroundedSAMConfig
+    raise UnknownNameError("segmenter", name, SEGMENTERS)
+
+
+def make_segmenter(name: str, config: Any = None) -> Segmenter:
+    """Build segmenter ``name`` from its config dataclass, a mapping of its fields, or None (defaults).
+
+    Raises UnknownNameError (listing the names) for an unknown segmenter, ConfigError for a bad config,
+    and ModelFileError when grounded_sam's model files are missing or do not match.
+    """
+    cls = segmenter_config_class(name)
+    if config is None or isinstance(config, Mapping):
+        config = from_dict(cls, dict(config or {}), where=name)
+    elif not isinstance(config, cls):
+        raise ConfigError(f"segmenter {name!r} needs a {cls.__name__} or a mapping, got {type(config).__name__}")
+    if name == "gt":
+        return GTSegmenter(config)
+    if name == "noisy":
+        return NoisySegmenter(config)
+    from torm.segmentation.grounded_sam import GroundedSAMSegmenter
+
+    return GroundedSAMSegmenter(config)
+
+
+__all__ = [
+    "PRESETS", "SEGMENTERS", "Detection", "GTConfig", "GTSegmenter", "NoiseConfig", "NoisyConfig", "NoisySegmenter",
+    "SegmentationResult", "Segmenter", "corrupt_masks", "make_segmenter", "mask_quality", "segment_capture",
+    "segmenter_config_class",
+]

@@ -1,0 +1,319 @@
+"""Grounded-SAM on onnxruntime: Grounding DINO boxes from a text prompt, SAM masks from the boxes.
+
+The paper's silhouette extractor (Sec. III-A): Grounding DINO finds boxes for prompts such as
+"clear glass" in every RGB view; each box prompts SAM, whose mask becomes one instance. Expected
+ONNX signatures (export recipes in ``torm/segmentation/README.md``):
+
+Grounding DINO (``gdino_model``)
+    inputs  ``img`` (or ``samples``) (1, 3, H, W) float32, RGB/255 normalised with ImageNet mean/std,
+            resized so the short side is 800 px (longest <= 1333), or to the export's static size;
+            ``input_ids``, ``attention_mask``, ``position_ids``, ``token_type_ids`` (1, T);
+            ``text_token_mask`` (or ``text_self_attention_masks``) (1, T, T) phrase-block mask.
+            Integer/bool dtypes are taken from the model. T = the token count, or the export's static T.
+    outputs ``logits`` (or ``pred_logits``) (1, Q, L) raw token logits (Q = 900 queries, L = 256);
+            ``boxes`` (or ``pred_boxes``) (1, Q, 4) normalised cx, cy, w, h.
+
+SAM image encoder (``sam_encoder``)
+    input   one tensor (1, 3, 1024, 1024) float32: longest side resized to 1024, (RGB - mean) / std with
+            SAM's pixel mean (123.675, 116.28, 103.53) and std (58.395, 57.12, 57.375), zero-padded
+            bottom/right;
+    output  ``image_embeddings`` (or its only output) (1, 256, 64, 64) float32.
+
+SAM mask decoder (``sam_decoder``; segment-anything ``scripts/export_onnx_model.py``)
+    inputs  ``image_embeddings`` (1, 256, 64, 64); ``point_coords`` (1, N, 2) in the 1024-resized frame;
+            ``point_labels`` (1, N) (box corners: 2 = top-left, 3 = bottom-right); ``mask_input``
+            (1, 1, 256, 256); ``has_mask_input`` (1,); ``orig_im_size`` (2,) = (H, W) float32;
+    outputs ``masks`` (1, C, H, W) logits (C = 1 with ``--return-single-mask``, else 4),
+            ``iou_predictions`` (1, C), ``low_res_masks`` (1, C, 256, 256).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from torm.errors import CaptureError, ConfigError, ModelFileError
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter
+from torm.segmentation.boxes import DecodedBoxes, decode_grounding
+from torm.segmentation.onnx_models import BoundSession, TensorSpec, open_session, static_dims
+from torm.segmentation.postprocess import clean_mask, compose_instances
+from torm.segmentation.quality import mask_quality
+from torm.segmentation.tokenizer import TextInputs, WordPieceTokenizer, grounding_text_inputs
+from torm.types import Capture
+
+log = logging.getLogger(__name__)
+
+IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], dtype=np.float32)
+IMAGENET_STD = np.array([0.229, 0.224, 0.225], dtype=np.float32)
+SAM_PIXEL_MEAN = np.array([123.675, 116.28, 103.53], dtype=np.float32)
+SAM_PIXEL_STD = np.array([58.395, 57.12, 57.375], dtype=np.float32)
+
+GDINO_INPUTS = (
+    TensorSpec("img", ("img", "samples", "image", "pixel_values"), (1, 3, None, None)),
+    TensorSpec("input_ids", ("input_ids",), (1, None)),
+    TensorSpec("attention_mask", ("attention_mask",), (1, None)),
+    TensorSpec("position_ids", ("position_ids",), (1, None)),
+    TensorSpec("token_type_ids", ("token_type_ids",), (1, None)),
+    TensorSpec("text_token_mask", ("text_token_mask", "text_self_attention_masks"), (1, None, None)),
+)
+GDINO_OUTPUTS = (
+    TensorSpec("logits", ("logits", "pred_logits"), (1, None, None)),
+    TensorSpec("boxes", ("boxes", "pred_boxes"), (1, None, 4)),
+)
+SAM_DECODER_INPUTS = (
+    TensorSpec("image_embeddings", ("image_embeddings",), (1, 256, 64, 64)),
+    TensorSpec("point_coords", ("point_coords",), (1, None, 2)),
+    TensorSpec("point_labels", ("point_labels",), (1, None)),
+    TensorSpec("mask_input", ("mask_input",), (1, 1, 256, 256)),
+    TensorSpec("has_mask_input", ("has_mask_input",), (1,)),
+    TensorSpec("orig_im_size", ("orig_im_size",), (2,)),
+)
+SAM_DECODER_OUTPUTS = (
+    TensorSpec("masks", ("masks",), (1, None, None, None)),
+    TensorSpec("iou_predictions", ("iou_predictions", "scores"), (1, None)),
+    TensorSpec("low_res_masks", ("low_res_masks",), (1, None, 256, 256), required=False),
+)
+
+
+def sam_encoder_specs(image_size: int) -> tuple[tuple[TensorSpec, ...], tuple[TensorSpec, ...]]:
+    side = image_size // 16
+    return ((TensorSpec("image", ("image", "input_image", "x", "images", "*"), (1, 3, image_size, image_size)),),
+            (TensorSpec("image_embeddings", ("image_embeddings", "*"), (1, 256, side, side)),))
+
+
+def _fraction(name: str, v: float) -> None:
+    if not 0.0 <= v <= 1.0:
+        raise ConfigError(f"grounded_sam.{name} = {v} must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class GroundedSAMConfig:
+    """Settings of the Grounding DINO + SAM segmenter (paths to ONNX files, thresholds, clean-up).
+
+    Pixel sizes refer to the original capture images. ``gdino_image_size`` (H, W) forces a fixed input
+    size (needed when the export has static image dims; read from the model when it does).
+    ``providers`` empty = CUDA when available, else CPU. ``threads`` 0 = onnxruntime's default.
+    """
+
+    gdino_model: str = ""
+    bert_vocab: str = ""
+    sam_encoder: str = ""
+    sam_decoder: str = ""
+    prompt: str = "clear glass. transparent object."
+    box_threshold: float = 0.35
+    text_threshold: float = 0.25
+    nms_iou: float = 0.5
+    max_detections: int = 20
+    max_box_fraction: float = 0.9
+    min_box_px: float = 2.0
+    gdino_short_side: int = 800
+    gdino_max_size: int = 1333
+    gdino_image_size: tuple[int, int] | None = None
+    max_text_len: int = 256
+    logits_are_probabilities: bool = False
+    sam_image_size: int = 1024
+    mask_threshold: float = 0.0
+    fill_holes: bool = True
+    min_blob_area_px: int = 64
+    keep_largest_component: bool = False
+    providers: tuple[str, ...] = ()
+    threads: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("box_threshold", "text_threshold", "nms_iou", "max_box_fraction"):
+            _fraction(name, getattr(self, name))
+        if not self.prompt.strip():
+            raise ConfigError("grounded_sam.prompt is empty; give phrases like 'clear glass. transparent object.'")
+        if self.gdino_short_side <= 0 or self.gdino_max_size < self.gdino_short_side:
+            raise ConfigError("grounded_sam: need 0 < gdino_short_side <= gdino_max_size")
+        if self.gdino_image_size is not None and min(self.gdino_image_size) <= 0:
+            raise ConfigError("grounded_sam.gdino_image_size must be a positive (H, W) or null")
+        if self.sam_image_size <= 0 or self.sam_image_size % 16:
+            raise ConfigError("grounded_sam.sam_image_size must be a positive multiple of 16 (1024 for SAM)")
+        if self.max_detections <= 0 or self.max_text_len < 3 or self.min_blob_area_px < 0 or self.threads < 0:
+            raise ConfigError(
+                "grounded_sam: need max_detections > 0, max_text_len >= 3, min_blob_area_px >= 0, threads >= 0")
+
+
+def gdino_resize_hw(h: int, w: int, short: int = 800, max_size: int = 1333) -> tuple[int, int]:
+    """Grounding DINO's ``RandomResize([short], max_size)`` output (H, W) for an (h, w) image."""
+    size = short
+    lo, hi = float(min(h, w)), float(max(h, w))
+    if hi / lo * size > max_size:
+        size = int(round(max_size * lo / hi))
+    if (w <= h and w == size) or (h <= w and h == size):
+        return h, w
+    if w < h:
+        return int(size * h / w), size
+    return size, int(size * w / h)
+
+
+def _resize(rgb: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    h, w = hw
+    if (h, w) == rgb.shape[:2]:
+        return rgb
+    interp = cv2.INTER_AREA if h < rgb.shape[0] else cv2.INTER_LINEAR
+    return cv2.resize(rgb, (w, h), interpolation=interp)
+
+
+def gdino_preprocess(rgb: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """(H, W, 3) uint8 RGB -> (1, 3, h, w) float32 ImageNet-normalised at size ``hw``."""
+    x = _resize(rgb, hw).astype(np.float32) / 255.0
+    x = (x - IMAGENET_MEAN) / IMAGENET_STD
+    return x.transpose(2, 0, 1)[None].astype(np.float32)
+
+
+def sam_resize_hw(h: int, w: int, long_side: int = 1024) -> tuple[int, int]:
+    """SAM's ``ResizeLongestSide.get_preprocess_shape``."""
+    scale = long_side / max(h, w)
+    return int(h * scale + 0.5), int(w * scale + 0.5)
+
+
+def sam_preprocess(rgb: np.ndarray, long_side: int = 1024) -> np.ndarray:
+    """(H, W, 3) uint8 RGB -> (1, 3, S, S) float32: longest side S, SAM-normalised, zero-padded."""
+    nh, nw = sam_resize_hw(*rgb.shape[:2], long_side)
+    x = (_resize(rgb, (nh, nw)).astype(np.float32) - SAM_PIXEL_MEAN) / SAM_PIXEL_STD
+    out = np.zeros((1, 3, long_side, long_side), np.float32)
+    out[0, :, :nh, :nw] = x.transpose(2, 0, 1)
+    return out
+
+
+def sam_box_prompt(box_xyxy: np.ndarray, hw: tuple[int, int], long_side: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """Box corners in the resized frame (1, 2, 2) float32 and their labels (1, 2) = [2, 3]."""
+    h, w = hw
+    nh, nw = sam_resize_hw(h, w, long_side)
+    pts = np.asarray(box_xyxy, dtype=np.float64).reshape(2, 2) * np.array([nw / w, nh / h])
+    return pts[None].astype(np.float32), np.array([[2.0, 3.0]], dtype=np.float32)
+
+
+def select_sam_mask(masks_1xcxhxw: np.ndarray, iou_1xc: np.ndarray, n_points: int) -> np.ndarray:
+    """Pick one (H, W) logit map like SamOnnxModel.select_masks (multimask output unless > 2 points)."""
+    m = masks_1xcxhxw[0]
+    if m.shape[0] == 1:
+        return m[0]
+    reweight = np.zeros(m.shape[0])
+    reweight[0] = 1000.0
+    score = np.asarray(iou_1xc, dtype=np.float64)[0] + (n_points - 2.5) * reweight
+    return m[int(np.argmax(score))]
+
+
+class GroundedSAMSegmenter(Segmenter):
+    """Grounding DINO + SAM on onnxruntime; sessions are loaded (and checked) on construction."""
+
+    name = "grounded_sam"
+
+    def __init__(self, config: GroundedSAMConfig) -> None:
+        self.config = c = config
+        providers = list(c.providers) or None
+        if not c.bert_vocab:
+            raise ModelFileError("grounded_sam.bert_vocab is not set; point it at bert-base-uncased's vocab.txt")
+        self.tokenizer = WordPieceTokenizer.from_file(c.bert_vocab)
+        self.gdino: BoundSession = open_session(c.gdino_model, "grounded_sam.gdino_model", GDINO_INPUTS,
+                                                GDINO_OUTPUTS, providers, c.threads)
+        enc_in, enc_out = sam_encoder_specs(c.sam_image_size)
+        self.sam_encoder = open_session(c.sam_encoder, "grounded_sam.sam_encoder", enc_in, enc_out, providers,
+                                        c.threads)
+        self.sam_decoder = open_session(c.sam_decoder, "grounded_sam.sam_decoder", SAM_DECODER_INPUTS,
+                                        SAM_DECODER_OUTPUTS, providers, c.threads)
+        ids_dims = static_dims(self.gdino, "input_ids")
+        self._text_len = ids_dims[1]
+        img_dims = static_dims(self.gdino, "img")
+        self._gdino_static_hw = (img_dims[2], img_dims[3]) if img_dims[2] and img_dims[3] else None
+        self.text: TextInputs = grounding_text_inputs(self.tokenizer, c.prompt, c.max_text_len, pad_to=self._text_len)
+
+    def gdino_input_hw(self, h: int, w: int) -> tuple[int, int]:
+        if self._gdino_static_hw is not None:
+            return self._gdino_static_hw
+        if self.config.gdino_image_size is not None:
+            return tuple(self.config.gdino_image_size)  # type: ignore[return-value]
+        return gdino_resize_hw(h, w, self.config.gdino_short_side, self.config.gdino_max_size)
+
+    def detect(self, rgb: np.ndarray) -> DecodedBoxes:
+        """Grounding DINO boxes (xyxy pixels of ``rgb``), scores and phrases, after thresholds and NMS."""
+        c, t = self.config, self.text
+        h, w = rgb.shape[:2]
+        img = gdino_preprocess(rgb, self.gdino_input_hw(h, w))
+        logits, boxes = self.gdino.run(
+            {"img": img, "input_ids": t.input_ids, "attention_mask": t.attention_mask, "position_ids": t.position_ids,
+             "token_type_ids": t.token_type_ids, "text_token_mask": t.self_attention_mask},
+            ("logits", "boxes"),
+        )
+        return decode_grounding(
+            logits[0], boxes[0], t, self.tokenizer, (w, h), c.box_threshold, c.text_threshold, c.nms_iou,
+            logits_are_probabilities=c.logits_are_probabilities, max_box_fraction=c.max_box_fraction,
+            min_box_px=c.min_box_px, max_detections=c.max_detections,
+        )
+
+    def embed(self, rgb: np.ndarray) -> np.ndarray:
+        """SAM image embeddings (1, 256, 64, 64) of ``rgb``."""
+        return self.sam_encoder.run({"image": sam_preprocess(rgb, self.config.sam_image_size)},
+                                    ("image_embeddings",))[0]
+
+    def mask_logits(self, embeddings: np.ndarray, box_xyxy: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+        """(H, W) SAM mask logits for one box prompt."""
+        coords, labels = sam_box_prompt(box_xyxy, hw, self.config.sam_image_size)
+        masks, iou = self.sam_decoder.run(
+            {"image_embeddings": embeddings, "point_coords": coords, "point_labels": labels,
+             "mask_input": np.zeros((1, 1, 256, 256), np.float32), "has_mask_input": np.zeros(1, np.float32),
+             "orig_im_size": np.array(hw, dtype=np.float32)},
+            ("masks", "iou_predictions"),
+        )
+        m = select_sam_mask(masks, iou, coords.shape[1])
+        if m.shape != tuple(hw):
+            raise CaptureError(f"SAM decoder returned a {m.shape} mask for a {hw} image; export it with orig_im_size")
+        return m
+
+    def segment_image(self, rgb: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, tuple[Detection, ...]]:
+        """(H, W) int32 instance mask and detections of one RGB image; adds stage times to ``timings``."""
+        c = self.config
+        hw = rgb.shape[:2]
+        t0 = time.perf_counter()
+        dec = self.detect(rgb)
+        t1 = time.perf_counter()
+        timings["gdino"] = timings.get("gdino", 0.0) + t1 - t0
+        if len(dec.scores_n) == 0:
+            return np.zeros(hw, np.int32), ()
+        emb = self.embed(rgb)
+        t2 = time.perf_counter()
+        timings["sam_encoder"] = timings.get("sam_encoder", 0.0) + t2 - t1
+        bins, t_dec, t_post = [], 0.0, 0.0
+        for box in dec.boxes_nx4:
+            ta = time.perf_counter()
+            logit = self.mask_logits(emb, box, hw)
+            tb = time.perf_counter()
+            bins.append(clean_mask(logit, c.mask_threshold, c.fill_holes, c.min_blob_area_px,
+                                   c.keep_largest_component))
+            t_dec += tb - ta
+            t_post += time.perf_counter() - tb
+        mask, ids = compose_instances(bins, hw, c.min_blob_area_px)
+        timings["sam_decoder"] = timings.get("sam_decoder", 0.0) + t_dec
+        timings["postprocess"] = timings.get("postprocess", 0.0) + t_post
+        dets = tuple(
+            Detection(tuple(float(x) for x in b), float(s), p, int(i))  # type: ignore[arg-type]
+            for b, s, p, i in zip(dec.boxes_nx4, dec.scores_n, dec.phrases, ids, strict=True)
+        )
+        return mask, dets
+
+    def segment(self, capture: Capture) -> SegmentationResult:
+        t0 = time.perf_counter()
+        timings: dict[str, float] = {}
+        masks, dets = [], []
+        for i, view in enumerate(capture.views):
+            if view.rgb is None:
+                raise CaptureError(f"view {i} ({view.name!r}) has no RGB image; grounded_sam segments colour images")
+            m, d = self.segment_image(view.rgb, timings)
+            masks.append(m)
+            dets.append(d)
+            log.debug("view %d: %d detections", i, len(d))
+        timings["total"] = time.perf_counter() - t0
+        out = np.stack(masks)
+        info: dict[str, Any] = {"segmenter": self.name, "prompt": self.config.prompt,
+                                "providers": self.gdino.session.get_providers()}
+        if capture.has_masks:
+            info["quality"] = mask_quality(out, capture.masks())
+        return SegmentationResult(out, tuple(dets), timings, info)
