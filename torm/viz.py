@@ -102,3 +102,72 @@ def log_points(
 ) -> None:
     """Log a point cloud (N, 3) m, optional (N, 3) uint8 colours, at ``path``."""
     rec.log(path, rr.Points3D(points_nx3, colors=colors, radii=radius), static=True)
+
+
+def grasp_strips(grasp: Any, finger_depth: float = 0.04) -> list[np.ndarray]:
+    """Line strips (world frame, m) drawing a parallel-jaw grasp: a U through the two finger tips plus the approach.
+
+    Grasp frame (GraspNet): x = approach, y = closing axis; origin between the pads.
+    """
+    T = grasp.T_world_grasp
+    x, y, o = T[:3, 0], T[:3, 1], T[:3, 3]
+    half = grasp.width / 2
+    tip_l, tip_r = o + y * half + x * 0.01, o - y * half + x * 0.01
+    base_l, base_r = tip_l - x * finger_depth, tip_r - x * finger_depth
+    mid = (base_l + base_r) / 2
+    return [np.stack([tip_l, base_l, base_r, tip_r]), np.stack([mid, mid - x * 0.05])]
+
+
+def log_grasps(rec: rr.RecordingStream, path: str, grasps: Sequence[Any], color: Sequence[int] = (0, 220, 220)) -> None:
+    """Log grasps (:class:`~torm.types.Grasp`) as gripper outlines at ``path`` (static)."""
+    strips = [s for g in grasps for s in grasp_strips(g)]
+    if strips:
+        rec.log(path, rr.LineStrips3D(strips, colors=[tuple(color)] * len(strips), radii=0.0015), static=True)
+
+
+class TrialRecorder:
+    """Streams one closed-loop trial to an ``.rrd`` file: capture, meshes, grasps and the executed motion.
+
+    The motion is logged on the ``sim_time`` timeline (s) from a backend step callback, at most every
+    ``period`` seconds: the TCP position and every object's position (world frame, m).
+    """
+
+    def __init__(self, path: str, period: float = 0.05) -> None:
+        self.rec = rr.RecordingStream("torm_trial")
+        self.rec.save(path)
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.period = period
+        self._next = -np.inf
+        self._tcp: list[np.ndarray] = []
+
+    def perception(self, capture: Capture, meshes: Sequence[Any], clouds: Sequence[Any],
+                   grasps: Sequence[Sequence[Any]]) -> None:
+        """Log the capture (8 views with images), reconstructed meshes, point clouds and planned grasps."""
+        n = len(capture.views)
+        log_capture(self.rec, capture, image_views=sorted({int(i) for i in np.linspace(0, n - 1, min(8, n))}))
+        colors = instance_colors(max(len(clouds), 1))
+        for k, (cloud, mesh) in enumerate(zip(clouds, meshes, strict=False)):
+            c = tuple(int(v) for v in colors[k + 1])
+            if mesh is not None:
+                log_mesh(self.rec, f"world/reconstruction/object_{k}", mesh, color=c)
+            log_points(self.rec, f"world/points/object_{k}", cloud.points_nx3, radius=0.0008)
+        for k, gs in enumerate(grasps):
+            log_grasps(self.rec, f"world/grasps/object_{k}", gs[:1])
+            log_grasps(self.rec, f"world/grasps/object_{k}_alternatives", gs[1:], color=(120, 120, 120))
+
+    def step(self, t: float, T_world_tcp: np.ndarray, object_positions: dict[int, np.ndarray]) -> None:
+        """Log the TCP and object positions at simulated time ``t`` (s), rate-limited to ``period``."""
+        if t < self._next:
+            return
+        self._next = t + self.period
+        self.rec.set_time("sim_time", duration=float(t))
+        self._tcp.append(T_world_tcp[:3, 3].copy())
+        self.rec.log("world/motion/tcp", rr.Points3D([T_world_tcp[:3, 3]], radii=0.006, colors=[(255, 80, 0)]))
+        self.rec.log("world/motion/tcp_path", rr.LineStrips3D([np.asarray(self._tcp)], radii=0.001))
+        ids = sorted(object_positions)
+        if ids:
+            self.rec.log("world/motion/objects", rr.Points3D([object_positions[i] for i in ids], radii=0.01,
+                                                            labels=[str(i) for i in ids]))
+
+    def close(self) -> None:
+        self.rec.flush()

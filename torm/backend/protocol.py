@@ -12,7 +12,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from torm.types import CameraView, Capture
+from torm.types import CameraView, Capture, TriMesh
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,10 @@ class GroundTruth(Protocol):
         ...
 
     def table_height(self) -> float: ...
+
+    def object_meshes(self) -> dict[int, TriMesh]:
+        """Instance id -> the object's true outer surface in the world frame at its current pose (m)."""
+        ...
 
 
 @runtime_checkable

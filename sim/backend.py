@@ -1,0 +1,435 @@
+"""The simulated backend: arm, gripper, clock, ground truth and camera rig on a :class:`sim.world.World`.
+
+Implements :class:`torm.backend.protocol.Backend` on MuJoCo so the harness runs the same pick code on the
+simulator and on the real robot. Units: m, rad, s, N; world = robot base frame, z up.
+
+* :class:`SimArm` streams joint targets into the arm's position actuators: the commanded waypoints are
+  linearly interpolated at ``control_dt`` while physics steps at the model timestep, then the arm settles.
+  Every control tick checks the simulation's health (finite state, no new MuJoCo warnings, bounded contact
+  forces and object speeds) and raises :class:`~torm.execution.errors.PhysicsError` otherwise.
+* :class:`SimGripper` maps an opening width to the 0..255 command with the robot config's measured map,
+  ramps the command at the requested speed, caps the pad force through the actuator's force range (20-235 N,
+  the 2F-85's range) and waits until the fingers stop; an object is detected when the fingers stall short of
+  the commanded width (like the Robotiq's ``gOBJ``).
+* The arm is exposed wrapped in :class:`~torm.backend.safety.SafeArm`: joint limits, speed limits and a TCP
+  workspace box from the robot config and :class:`SimBackendConfig`.
+* :meth:`SimBackend.add_step_callback` registers ``fn(t)`` called every control tick (simulated time ``t``
+  in s), e.g. to sample object and TCP positions for the success test.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import mujoco
+import numpy as np
+import trimesh
+
+from torm.backend.protocol import ArmState, GripperState
+from torm.backend.safety import SafeArm, SafetyLimits
+from torm.errors import ConfigError, SceneError
+from torm.execution.errors import PhysicsError
+from torm.types import TriMesh
+
+if TYPE_CHECKING:
+    from sim.robot_config import RobotConfig
+    from sim.world import World
+    from torm.types import Capture
+
+log = logging.getLogger(__name__)
+
+StepCallback = Callable[[float], None]
+
+
+@dataclass(frozen=True)
+class SimBackendConfig:
+    """Simulated backend settings (s, m, N, rad/s).
+
+    Attributes:
+        control_dt: period at which joint/gripper targets are updated (s); a multiple of the model timestep.
+        settle_time: longest wait after a trajectory for the arm to come to rest (s).
+        settle_speed: joint speed below which the arm counts as at rest (rad/s).
+        speed_scale: fraction of the joint velocity/acceleration limits the safety layer allows, (0, 1].
+        workspace_min, workspace_max: TCP box corners in the world (m) enforced by the safety layer.
+        gripper_force_range: the pad force range a command is clipped to (N); 2F-85: 20-235.
+        gripper_timeout: longest wait for the fingers to stop after the command ramp (s).
+        gripper_stall_speed: finger gap speed below which the fingers count as stopped (m/s).
+        gripper_stall_time: how long the gap speed must stay below ``gripper_stall_speed`` (s).
+        object_detect_tolerance: gap beyond the commanded width at which an object counts as held (m).
+        max_contact_force: largest contact constraint force before the simulation counts as exploded (N).
+        max_object_speed: largest free-body linear speed before the simulation counts as exploded (m/s).
+    """
+
+    control_dt: float = 0.002
+    settle_time: float = 0.5
+    settle_speed: float = 0.01
+    speed_scale: float = 0.5
+    workspace_min: tuple[float, float, float] = (-0.2, -0.6, -0.005)
+    workspace_max: tuple[float, float, float] = (1.0, 0.6, 1.0)
+    gripper_force_range: tuple[float, float] = (20.0, 235.0)
+    gripper_timeout: float = 2.0
+    gripper_stall_speed: float = 0.002
+    gripper_stall_time: float = 0.05
+    object_detect_tolerance: float = 0.002
+    max_contact_force: float = 5000.0
+    max_object_speed: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("control_dt", "settle_time", "settle_speed", "gripper_timeout", "gripper_stall_speed",
+                     "gripper_stall_time", "object_detect_tolerance", "max_contact_force", "max_object_speed"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"SimBackendConfig.{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 < self.speed_scale <= 1.0:
+            raise ConfigError(f"SimBackendConfig.speed_scale must be in (0, 1], got {self.speed_scale}")
+        if not np.all(np.asarray(self.workspace_max) > np.asarray(self.workspace_min)):
+            raise ConfigError("SimBackendConfig.workspace_max must exceed workspace_min on every axis (m)")
+        lo, hi = self.gripper_force_range
+        if not 0 < lo < hi:
+            raise ConfigError(f"SimBackendConfig.gripper_force_range {self.gripper_force_range} must be "
+                              "0 < lo < hi (N)")
+
+
+def _site_pose(data: mujoco.MjData, site_id: int) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = data.site_xmat[site_id].reshape(3, 3)
+    T[:3, 3] = data.site_xpos[site_id]
+    return T
+
+
+class _Sim:
+    """The shared stepping core: holds the world, advances physics and checks its health every control tick."""
+
+    def __init__(self, world: World, rcfg: RobotConfig, config: SimBackendConfig) -> None:
+        self.world, self.rcfg, self.config = world, rcfg, config
+        m = self.model = world.model
+        self.data = world.data
+        ratio = config.control_dt / m.opt.timestep
+        self.substeps = max(1, int(round(ratio)))
+        if abs(ratio - self.substeps) > 1e-6:
+            raise ConfigError(f"SimBackendConfig.control_dt {config.control_dt} s must be a multiple of the model "
+                              f"timestep {m.opt.timestep} s")
+        self.callbacks: list[StepCallback] = []
+        obj_dofs = [m.jnt_dofadr[m.body_jntadr[o.body_id]] for o in world.objects]
+        self._obj_lin = np.array([[a, a + 1, a + 2] for a in obj_dofs], dtype=int).reshape(-1, 3)
+        self._warn0 = self._warning_counts()
+
+    def _warning_counts(self) -> np.ndarray:
+        return np.array(self.data.warning.number, dtype=np.int64)
+
+    def reset_baseline(self) -> None:
+        """Accept the current MuJoCo warning counters as the baseline (after a world reset)."""
+        self._warn0 = self._warning_counts()
+
+    def check(self) -> None:
+        """Raise PhysicsError if the state is not finite, MuJoCo warned, or contacts/objects exploded."""
+        d = self.data
+        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel)) and np.all(np.isfinite(d.qacc))):
+            raise PhysicsError(f"simulation state became NaN/inf at t = {d.time:.3f} s; the trial is aborted")
+        warn = self._warning_counts()
+        if np.any(warn > self._warn0):
+            names = [mujoco.mjtWarning(i).name for i in np.nonzero(warn > self._warn0)[0]]
+            raise PhysicsError(f"MuJoCo warning(s) {names} at t = {d.time:.3f} s; the trial is aborted")
+        if d.nefc:
+            contact = d.efc_type[: d.nefc] >= int(mujoco.mjtConstraint.mjCNSTR_CONTACT_FRICTIONLESS)
+            if np.any(contact):
+                f = float(np.max(np.abs(d.efc_force[: d.nefc][contact])))
+                if f > self.config.max_contact_force:
+                    raise PhysicsError(f"contact force {f:.0f} N exceeds {self.config.max_contact_force:.0f} N at "
+                                       f"t = {d.time:.3f} s (exploding contact); the trial is aborted")
+        if len(self._obj_lin):
+            v = float(np.max(np.linalg.norm(d.qvel[self._obj_lin], axis=1)))
+            if v > self.config.max_object_speed:
+                raise PhysicsError(f"an object moves at {v:.1f} m/s (> {self.config.max_object_speed} m/s) at "
+                                   f"t = {d.time:.3f} s; the trial is aborted")
+
+    def tick(self) -> None:
+        """Advance one control period, check health, then call the step callbacks with the simulated time (s)."""
+        mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+        self.check()
+        for fn in list(self.callbacks):
+            fn(float(self.data.time))
+
+    def run_for(self, seconds: float) -> None:
+        """Hold the current controls for ``seconds`` (s) of simulated time."""
+        for _ in range(max(0, int(round(seconds / self.config.control_dt)))):
+            self.tick()
+
+
+class SimArm:
+    """Position-controlled simulated arm (implements :class:`torm.backend.protocol.Arm`)."""
+
+    def __init__(self, sim: _Sim, robot_model: mujoco.MjModel) -> None:
+        self._sim = sim
+        cfg = sim.rcfg.arm
+        m = sim.model
+        self.joint_names: tuple[str, ...] = tuple(cfg.joints)
+        self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in cfg.joints])
+        self._dadr = np.array([m.jnt_dofadr[m.joint(j).id] for j in cfg.joints])
+        self._act = np.array([m.actuator(a).id for a in cfg.actuators])
+        self._tcp = m.site(cfg.tcp_site).id
+        self._fk_model = robot_model
+        self._fk_data = mujoco.MjData(robot_model)
+        self._fk_qadr = np.array([robot_model.jnt_qposadr[robot_model.joint(j).id] for j in cfg.joints])
+        self._fk_tcp = robot_model.site(cfg.tcp_site).id
+
+    def state(self) -> ArmState:
+        d = self._sim.data
+        mujoco.mj_kinematics(self._sim.model, d)  # site poses of the current qpos (mj_step leaves them one step old)
+        return ArmState(q=d.qpos[self._qadr].copy(), qd=d.qvel[self._dadr].copy(),
+                        T_world_tcp=_site_pose(d, self._tcp), time=float(d.time))
+
+    def target(self) -> np.ndarray:
+        """(n,) joint targets (rad) currently sent to the position actuators."""
+        return self._sim.data.ctrl[self._act].copy()
+
+    def forward_kinematics(self, q: np.ndarray) -> np.ndarray:
+        """TCP pose (4, 4) in the world for arm joints ``q`` (n,) rad, on the robot-only model (nothing moves)."""
+        q = np.asarray(q, float)
+        if q.shape != (len(self.joint_names),):
+            raise ConfigError(f"forward_kinematics needs {len(self.joint_names)} joint values, got shape {q.shape}")
+        self._fk_data.qpos[self._fk_qadr] = q
+        mujoco.mj_kinematics(self._fk_model, self._fk_data)
+        return _site_pose(self._fk_data, self._fk_tcp)
+
+    def follow_trajectory(self, times_s: np.ndarray, q_txn: np.ndarray) -> ArmState:
+        """Stream ``q_txn`` (T, n) rad at ``times_s`` (T,) s from now (linear interpolation between samples,
+        starting from the current targets), then hold the last target until the arm is at rest."""
+        times_s = np.asarray(times_s, float)
+        q_txn = np.atleast_2d(np.asarray(q_txn, float))
+        sim = self._sim
+        knots_t = np.concatenate([[0.0], times_s])
+        knots_q = np.vstack([self.target()[None], q_txn])
+        dt = sim.config.control_dt
+        n = int(np.ceil(knots_t[-1] / dt - 1e-9))
+        for k in range(1, n + 1):
+            t = min(k * dt, knots_t[-1])
+            i = int(np.clip(np.searchsorted(knots_t, t) - 1, 0, len(knots_t) - 2))
+            f = (t - knots_t[i]) / (knots_t[i + 1] - knots_t[i])
+            sim.data.ctrl[self._act] = knots_q[i] + f * (knots_q[i + 1] - knots_q[i])
+            sim.tick()
+        sim.data.ctrl[self._act] = knots_q[-1]
+        self._settle()
+        return self.state()
+
+    def _settle(self) -> None:
+        sim = self._sim
+        for _ in range(max(1, int(round(sim.config.settle_time / sim.config.control_dt)))):
+            if np.max(np.abs(sim.data.qvel[self._dadr])) < sim.config.settle_speed:
+                break
+            sim.tick()
+
+    def stop(self) -> None:
+        """Hold the current joint positions (targets := measured q)."""
+        self._sim.data.ctrl[self._act] = self._sim.data.qpos[self._qadr]
+
+
+class SimGripper:
+    """Simulated 2F-85-style gripper commanded by width (implements :class:`torm.backend.protocol.Gripper`)."""
+
+    def __init__(self, sim: _Sim) -> None:
+        self._sim = sim
+        g = sim.rcfg.gripper
+        m = sim.model
+        self._g = g
+        self._act = m.actuator(g.actuator).id
+        self._pads = [m.geom(n).id for n in g.pad_geoms]
+        self._tcp = m.site(sim.rcfg.arm.tcp_site).id
+        axes = "xyz"
+        self._close_axis = axes.index(g.geometry.closing_axis)
+        self._pad_thickness = float(g.geometry.pad_size[self._close_axis])
+        self.max_width: float = float(g.geometry.max_opening)
+        cmds = np.array([c for c, _ in g.command_to_width])
+        widths = np.array([w for _, w in g.command_to_width])
+        self._m_per_cmd = float((widths[0] - widths[-1]) / (cmds[-1] - cmds[0]))  # mean gap change per command
+        self._target_width = self.width()
+        self._closing = False
+        self._forcerange0 = m.actuator_forcerange[self._act].copy()
+        self.force_n = float(g.force)
+
+    def reset(self) -> None:
+        """Forget the last command (after a world reset) and restore the actuator's force range."""
+        self._sim.model.actuator_forcerange[self._act] = self._forcerange0
+        self.force_n = float(self._forcerange0[1])
+        self._target_width, self._closing = self.width(), False
+
+    def width(self) -> float:
+        """Measured gap between the pads (m) along the closing axis."""
+        d = self._sim.data
+        mujoco.mj_kinematics(self._sim.model, d)
+        axis = d.site_xmat[self._tcp].reshape(3, 3)[:, self._close_axis]
+        sep = abs(float(np.dot(d.geom_xpos[self._pads[0]] - d.geom_xpos[self._pads[1]], axis)))
+        return max(0.0, sep - self._pad_thickness)
+
+    def activate(self) -> None:
+        """Nothing to do in simulation (the real 2F-85 needs an activation handshake)."""
+
+    def _detected(self, width: float) -> bool:
+        tol = self._sim.config.object_detect_tolerance
+        return (width > self._target_width + tol) if self._closing else (width < self._target_width - tol)
+
+    def state(self) -> GripperState:
+        w = self.width()
+        return GripperState(width=w, command=int(round(float(self._sim.data.ctrl[self._act]))),
+                            object_detected=self._detected(w))
+
+    def move(self, width_m: float, speed_mps: float = 0.1, force_n: float = 100.0) -> GripperState:
+        """Go to pad gap ``width_m`` (m) at ``speed_mps`` (m/s, command ramp) with at most ``force_n`` (N) per pad."""
+        sim, g = self._sim, self._g
+        if not (np.isfinite(width_m) and np.isfinite(speed_mps) and np.isfinite(force_n)) or speed_mps <= 0:
+            raise ConfigError(f"gripper move needs a finite width (m), positive speed (m/s) and force (N); "
+                              f"got {width_m}, {speed_mps}, {force_n}")
+        width_m = float(np.clip(width_m, 0.0, self.max_width))
+        lo, hi = sim.config.gripper_force_range
+        self.force_n = float(np.clip(force_n, lo, hi))
+        sim.model.actuator_forcerange[self._act] = (-self.force_n, self.force_n)
+        target = float(np.clip(g.width_to_command(width_m), *g.command_range))
+        w0 = self.width()
+        self._closing = width_m < w0
+        self._target_width = width_m
+        cmd = float(sim.data.ctrl[self._act])
+        rate = speed_mps / self._m_per_cmd * sim.config.control_dt  # command units per control tick
+        while abs(target - cmd) > 1e-9:
+            cmd = cmd + float(np.clip(target - cmd, -rate, rate))
+            sim.data.ctrl[self._act] = cmd
+            sim.tick()
+        # wait until the gap stops changing (reached the width, or stalled on an object)
+        dt = sim.config.control_dt
+        need = max(1, int(round(sim.config.gripper_stall_time / dt)))
+        still, w_prev = 0, self.width()
+        for _ in range(int(round(sim.config.gripper_timeout / dt))):
+            sim.tick()
+            w = self.width()
+            still = still + 1 if abs(w - w_prev) / dt < sim.config.gripper_stall_speed else 0
+            w_prev = w
+            if still >= need:
+                break
+        st = self.state()
+        log.debug("gripper to %.4f m: at %.4f m, object %s", width_m, st.width, st.object_detected)
+        return st
+
+
+class SimClock:
+    """Simulated time (implements :class:`torm.backend.protocol.Clock`); ``sleep`` steps physics."""
+
+    def __init__(self, sim: _Sim) -> None:
+        self._sim = sim
+
+    def now(self) -> float:
+        return float(self._sim.data.time)
+
+    def sleep(self, seconds: float) -> None:
+        """Hold all controls for ``seconds`` (s) of simulated time."""
+        self._sim.run_for(seconds)
+
+
+class SimGroundTruth:
+    """True object poses and table height of the world (implements :class:`torm.backend.protocol.GroundTruth`)."""
+
+    def __init__(self, world: World) -> None:
+        self._world = world
+
+    def object_poses(self) -> dict[int, np.ndarray]:
+        return {o.instance_id: self._world.object_pose(o.instance_id) for o in self._world.objects}
+
+    def table_height(self) -> float:
+        return float(self._world.table_height)
+
+    def object_meshes(self) -> dict[int, TriMesh]:
+        """Instance id -> the object's outer surface in the world frame at its current pose (m).
+
+        Sealed inner cavities (e.g. the closed toothpick box's inside, a shell with negative volume) are
+        dropped: no camera or finger can reach them. An open cup's inside is part of its outer surface.
+        """
+        out: dict[int, TriMesh] = {}
+        for o, mesh in zip(self._world.objects, self._world.object_meshes_world(), strict=True):
+            parts = [p for p in mesh.split(only_watertight=False) if p.volume > 0] if mesh.body_count > 1 else [mesh]
+            outer = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
+            out[o.instance_id] = TriMesh(np.asarray(outer.vertices), np.asarray(outer.faces))
+        return out
+
+
+class SimBackend:
+    """Everything a trial needs, simulated on a :class:`sim.world.World` (implements the Backend protocol).
+
+    Args:
+        world: a built world with a robot (``build_world(..., robot="inovo_2f85")``).
+        config: control, settling, gripper and safety settings.
+        camera_config: optional ``sim.camera_rig.CameraRigConfig`` for :meth:`capture`.
+
+    Attributes:
+        arm: the simulated arm wrapped in :class:`SafeArm`; ``arm.inner`` is the raw :class:`SimArm`.
+        gripper, clock, ground_truth: see the classes above.
+        robot_config: the robot's RobotConfig; ``robot_model`` a robot-only MjModel (for IK / FK).
+    """
+
+    name = "sim"
+
+    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None) -> None:
+        if world.robot_config is None:
+            raise SceneError("SimBackend needs a world with a robot; build it with "
+                             "build_world(..., robot='inovo_2f85')")
+        self.world = world
+        self.config = config or SimBackendConfig()
+        self.robot_config: RobotConfig = world.robot_config
+        self.robot_model = mujoco.MjModel.from_xml_path(str(self.robot_config.mjcf))
+        self._sim = _Sim(world, self.robot_config, self.config)
+        self.limits = safety_limits(self.robot_config, self.config)
+        self.arm = SafeArm(SimArm(self._sim, self.robot_model), self.limits)
+        self.gripper = SimGripper(self._sim)
+        self.clock = SimClock(self._sim)
+        self.ground_truth = SimGroundTruth(world)
+        self._camera_config = camera_config
+        self._rig = None
+
+    @classmethod
+    def from_scenario(cls, scenario: str, seed: int = 0, robot: str = "inovo_2f85",
+                      config: SimBackendConfig | None = None) -> SimBackend:
+        """Build the world for ``scenario``/``seed`` with ``robot`` and wrap it."""
+        from sim.world import build_world
+
+        return cls(build_world(scenario, seed, robot=robot), config)
+
+    def add_step_callback(self, fn: StepCallback) -> StepCallback:
+        """Call ``fn(t)`` (simulated time, s) after every control tick until removed; returns ``fn``."""
+        self._sim.callbacks.append(fn)
+        return fn
+
+    def remove_step_callback(self, fn: StepCallback) -> None:
+        """Stop calling ``fn`` (no error if it is not registered)."""
+        if fn in self._sim.callbacks:
+            self._sim.callbacks.remove(fn)
+
+    def reset(self) -> None:
+        """Restore the world's settled state (robot at home, gripper open)."""
+        self.world.reset()
+        self._sim.reset_baseline()
+        self.gripper.reset()
+
+    def capture(self, n_views: int | None = None) -> Capture:
+        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden)."""
+        if self._rig is None:
+            from sim.camera_rig import SimCameraRig
+
+            self._rig = SimCameraRig.from_world(self.world, self._camera_config)
+        return self._rig.capture(n_views)
+
+    def close(self) -> None:
+        """Free the camera rig's GL context."""
+        if self._rig is not None:
+            self._rig.close()
+            self._rig = None
+
+
+def safety_limits(rcfg: RobotConfig, config: SimBackendConfig | None = None) -> SafetyLimits:
+    """SafetyLimits from a robot config (joint, velocity, acceleration limits) and the backend's box/speed scale."""
+    config = config or SimBackendConfig()
+    a = rcfg.arm
+    return SafetyLimits(
+        q_min=tuple(float(v) for v in a.lower), q_max=tuple(float(v) for v in a.upper),
+        qd_max=tuple(float(v) for v in a.velocity_limits), qdd_max=tuple(float(v) for v in a.acceleration_limits),
+        workspace_min=tuple(config.workspace_min), workspace_max=tuple(config.workspace_max),
+        speed_scale=config.speed_scale,
+    )

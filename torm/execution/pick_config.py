@@ -1,0 +1,88 @@
+"""Settings of the pick sequence (see :mod:`torm.execution.pick`). Units: m, m/s, s, N, rad."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from torm.errors import ConfigError
+from torm.execution.ik import IKConfig
+
+
+@dataclass(frozen=True)
+class PickConfig:
+    """Pick sequence settings (m, m/s, s, N, rad).
+
+    Attributes:
+        pre_grasp_distance: stand-off of the pre-grasp pose back along the approach axis (m); also the retreat.
+        transit_height: a pre-grasp TCP lower than this (m above the world origin = table top) is reached by a
+            free move to the pose straight above it at this height, then a vertical line down; 0 disables.
+            The free move itself is a straight Cartesian line (orientation slerped) when IK allows, else a
+            joint move.
+        approach_speed: peak TCP speed on the approach and the retreat lines (m/s).
+        transport_speed: peak TCP speed while lifting, translating and lowering (m/s).
+        lift_height: how far the TCP rises after closing (m); the success test asks for 0.25 of object rise.
+        lift_margin: extra rise on top of ``lift_height`` so a little slip still passes the test (m).
+        translate_distance: horizontal move while lifted (m).
+        place_clearance: the object is released this far above where it was grasped (m).
+        speed_scale: fraction of the arm's velocity/acceleration limits used, (0, 1] (capped by the safety layer).
+        grip_force: pad force when closing (N).
+        grip_speed: finger speed (m/s).
+        open_margin: opening beyond the grasp width before the approach (m), capped at the gripper's stroke.
+        close_width: commanded width when closing (m); 0 = close until the object stops the fingers.
+        settle_after_close: hold time after closing before lifting (s).
+        ik: IK tolerances and solver settings.
+        max_candidates: how many grasp candidates (in the given order) are tried for reachability.
+        control_dt: sample period of the joint trajectories sent to the arm (s).
+        line_step: spacing of the IK waypoints on straight Cartesian segments (m).
+        max_joint_step: largest joint change between neighbouring line waypoints before the line counts as
+            passing a singularity / IK branch switch (rad).
+        approach_tolerance: the target moving more than this before the fingers close is a collision (m).
+        neighbour_tolerance: another object moving more than this during the approach is a collision (m);
+            at the end of the pick it is reported as disturbance.
+        sample_dt: period of the object/TCP samples taken during lift and translation (s).
+        try_flipped: also try the grasp rotated 180 deg about its approach axis (same grasp for a symmetric
+            parallel gripper), preferring the orientation closer to the current wrist.
+        check_robot_collisions: reject configurations where the arm hits itself or the table (plan time).
+        table_height: z of the table top for that check (m); world convention 0.
+    """
+
+    pre_grasp_distance: float = 0.10
+    transit_height: float = 0.25
+    approach_speed: float = 0.10
+    transport_speed: float = 0.25
+    lift_height: float = 0.25
+    lift_margin: float = 0.005
+    translate_distance: float = 0.20
+    place_clearance: float = 0.003
+    speed_scale: float = 0.5
+    grip_force: float = 130.0
+    grip_speed: float = 0.1
+    open_margin: float = 0.01
+    close_width: float = 0.0
+    settle_after_close: float = 0.2
+    ik: IKConfig = field(default_factory=IKConfig)
+    max_candidates: int = 10
+    control_dt: float = 0.01
+    line_step: float = 0.01
+    max_joint_step: float = 0.3
+    approach_tolerance: float = 0.01
+    neighbour_tolerance: float = 0.01
+    sample_dt: float = 0.01
+    try_flipped: bool = True
+    check_robot_collisions: bool = True
+    table_height: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("pre_grasp_distance", "approach_speed", "transport_speed", "lift_height", "translate_distance",
+                     "grip_force", "grip_speed", "control_dt", "line_step", "max_joint_step", "approach_tolerance",
+                     "neighbour_tolerance", "sample_dt"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"PickConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("lift_margin", "place_clearance", "open_margin", "close_width", "settle_after_close",
+                     "transit_height"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"PickConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 < self.speed_scale <= 1.0:
+            raise ConfigError(f"PickConfig.speed_scale must be in (0, 1], got {self.speed_scale}")
+        if self.max_candidates < 1:
+            raise ConfigError(f"PickConfig.max_candidates must be >= 1, got {self.max_candidates}")

@@ -1,0 +1,158 @@
+"""Perception front-ends of a trial: what each method turns a capture into before grasp planning.
+
+Three methods share one output (:class:`Perception`: per-object point clouds with normals, optional
+meshes) so the same planner and executor compare them fairly, as in the paper's Table III:
+
+- ``torm``: silhouettes (GT, error model or Grounding DINO + SAM) -> DMTet-Multi / visual hull ->
+  connectivity split -> equal-count surface samples.
+- ``depth``: the depth-camera baseline: a single view's *sensor* depth (which, like a real D455,
+  sees through glass) back-projected inside each object's mask; what a depth-based planner such as
+  GraspNet would get.
+- ``oracle``: samples of the true object meshes (simulation only): the upper bound.
+
+Frames: world (robot base, z up, m).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from torm.errors import ReconstructionError, TormError
+from torm.types import Capture, ObjectPointCloud, TriMesh
+
+log = logging.getLogger(__name__)
+
+METHODS = ("torm", "depth", "oracle")
+Method = Literal["torm", "depth", "oracle"]
+
+
+@dataclass
+class Perception:
+    """Per-object geometry for the planner.
+
+    ``point_clouds[k].object_index`` is the object's label: the matched ground-truth instance id in
+    simulation, otherwise ``1000 + k`` for the k-th reconstructed object. ``meshes`` aligns with
+    ``point_clouds`` (None entries where no mesh exists). ``info`` holds method-specific diagnostics
+    (timings in seconds, mask quality, reconstruction metrics).
+    """
+
+    point_clouds: list[ObjectPointCloud]
+    meshes: list[TriMesh | None]
+    info: dict[str, Any] = field(default_factory=dict)
+    reconstruction: Any = None
+
+
+def _estimate_normals(points_nx3: np.ndarray, viewpoint: np.ndarray, k: int = 16) -> np.ndarray:
+    """PCA normals (N, 3) from the k nearest neighbours, oriented towards ``viewpoint`` (3,) m."""
+    from scipy.spatial import cKDTree
+
+    n = len(points_nx3)
+    if n < 3:
+        return np.tile(np.array([0.0, 0.0, 1.0]), (n, 1))
+    _, idx = cKDTree(points_nx3).query(points_nx3, k=min(k, n))
+    nb = points_nx3[idx] - points_nx3[idx].mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb)
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    flip = np.einsum("ni,ni->n", normals, viewpoint - points_nx3) < 0
+    normals[flip] *= -1
+    return normals
+
+
+def _resample(points: np.ndarray, normals: np.ndarray, n: int, rng: np.random.Generator):
+    idx = rng.choice(len(points), size=n, replace=len(points) < n)
+    return points[idx], normals[idx]
+
+
+def depth_point_clouds(capture: Capture, view_index: int, n_points: int, rng: np.random.Generator,
+                       min_pixels: int = 30) -> list[ObjectPointCloud]:
+    """Single-view baseline: back-project view ``view_index``'s sensor depth inside each instance mask.
+
+    Returns one cloud per instance id with at least ``min_pixels`` valid depth pixels; ``object_index``
+    is the mask's instance id. Normals from local PCA, oriented towards the camera. Raises
+    :class:`TormError` when the view has no sensor depth or no mask.
+    """
+    view = capture.views[view_index]
+    depth = view.sensor_depth if view.sensor_depth is not None else view.depth
+    if depth is None or view.mask is None:
+        raise TormError(f"depth baseline: view {view_index} needs a depth image and a mask; capture them")
+    H, W = depth.shape
+    v, u = np.mgrid[0:H, 0:W]
+    z = depth.astype(np.float64)
+    fx, fy, cx, cy = view.K[0, 0], view.K[1, 1], view.K[0, 2], view.K[1, 2]
+    # Pixel centres at integer + 0.5, consistent with the renderer and the projection convention.
+    x = (u + 0.5 - cx) / fx * z
+    y = (v + 0.5 - cy) / fy * z
+    pts_cam = np.stack([x, y, z], axis=-1)
+    T = view.T_world_cam
+    eye = T[:3, 3]
+    clouds = []
+    for inst in sorted(int(i) for i in np.unique(view.mask) if i > 0):
+        sel = (view.mask == inst) & np.isfinite(z) & (z > 0)
+        if sel.sum() < min_pixels:
+            continue
+        p = pts_cam[sel] @ T[:3, :3].T + T[:3, 3]
+        nrm = _estimate_normals(p, eye)
+        p, nrm = _resample(p, nrm, n_points, rng)
+        clouds.append(ObjectPointCloud(p, nrm, inst))
+    return clouds
+
+
+def most_top_down_view(capture: Capture) -> int:
+    """Index of the view whose optical axis points most steeply down (the typical wrist-camera view)."""
+    down = np.array([0.0, 0.0, -1.0])
+    return int(np.argmax([v.T_world_cam[:3, 2] @ down for v in capture.views]))
+
+
+def oracle_point_clouds(meshes_by_id: dict[int, TriMesh], n_points: int, rng: np.random.Generator):
+    """Equal-count samples of the true meshes; ``object_index`` = instance id."""
+    from torm.mesh.sample import sample_surface
+
+    clouds, meshes = [], []
+    for inst, mesh in sorted(meshes_by_id.items()):
+        clouds.append(sample_surface(mesh, n_points, rng, object_index=inst))
+        meshes.append(mesh)
+    return clouds, meshes
+
+
+def label_by_ground_truth(point_clouds: list[ObjectPointCloud], gt_centroids: dict[int, np.ndarray],
+                          max_dist: float = 0.04) -> tuple[list[ObjectPointCloud], dict[str, Any]]:
+    """Relabel reconstructed clouds with the ground-truth instance id of the nearest object centroid.
+
+    Evaluation only (it uses privileged simulator state). Unmatched clouds get ``1000 + k``.
+    Returns the relabelled clouds and the matching summary of :func:`torm.metrics.match_objects`.
+    """
+    from torm.metrics import match_objects
+
+    ids = sorted(gt_centroids)
+    pred = np.array([c.points_nx3.mean(axis=0) for c in point_clouds]).reshape(-1, 3)
+    gt = np.array([gt_centroids[i] for i in ids]).reshape(-1, 3)
+    m = match_objects(pred, gt, max_dist=max_dist)
+    label = {int(p): ids[int(g)] for p, g in m["pairs"]}
+    out = [ObjectPointCloud(c.points_nx3, c.normals_nx3, label.get(k, 1000 + k)) for k, c in enumerate(point_clouds)]
+    return out, m
+
+
+def perceive_torm(capture: Capture, segmenter: Any, recon_config: Any) -> Perception:
+    """Silhouettes -> reconstruction -> per-object clouds (labels ``1000 + k`` until matched)."""
+    from torm.reconstruction import reconstruct
+
+    info: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    seg = segmenter.segment(capture)
+    info["segmentation_s"] = time.perf_counter() - t0
+    info["mask_quality"] = seg.info.get("quality")
+    seg_capture = seg.apply(capture)
+    rec = reconstruct(seg_capture, recon_config)
+    clouds = [ObjectPointCloud(c.points_nx3, c.normals_nx3, 1000 + k) for k, c in enumerate(rec.point_clouds)]
+    info["reconstruction_s"] = float(rec.timings.get("total", sum(rec.timings.values())))
+    info["reconstruction_timings"] = dict(rec.timings)
+    info["reconstruction_info"] = {k: v for k, v in rec.info.items() if isinstance(v, (int, float, str, bool))}
+    if not clouds:
+        raise ReconstructionError("no object reconstructed; check masks and cameras")
+    return Perception(clouds, list(rec.object_meshes), info, reconstruction=rec)
