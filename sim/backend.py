@@ -416,6 +416,17 @@ class SimBackend:
             self._rig = SimCameraRig.from_world(self.world, self._camera_config)
         return self._rig.capture(n_views)
 
+    def occlusion_ratio(self, capture: Capture) -> float:
+        """The paper's OCC of ``capture`` (taken by :meth:`capture` in the current state): share of views
+        in which at least one object is partly hidden by another (0..1)."""
+        from sim.occlusion import occlusion_ratio
+
+        if self._rig is None:
+            from sim.camera_rig import SimCameraRig
+
+            self._rig = SimCameraRig.from_world(self.world, self._camera_config)
+        return float(occlusion_ratio(self._rig, capture).ratio)
+
     def close(self) -> None:
         """Free the camera rig's GL context."""
         if self._rig is not None:

@@ -250,6 +250,10 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         record["objects"] = [_obj(i, names, Outcome.NOT_RECONSTRUCTED, str(exc)) for i in gt_ids]
         return
     record["perception"] = _perception_summary(per, backend, config)
+    if hasattr(backend, "occlusion_ratio") and per.info["capture"].has_masks:
+        t = time.perf_counter()
+        record["occ"] = backend.occlusion_ratio(per.info["capture"])
+        timings["occlusion_metric"] = time.perf_counter() - t
     gripper = _gripper(backend)
     table_z = gt.table_height() if gt is not None else 0.0
     t = time.perf_counter()

@@ -1,0 +1,40 @@
+"""DMTet-Multi reconstruction: tet grid, marching tetrahedra, visual hull, silhouette rasteriser, optimiser.
+
+Entry point: :func:`reconstruct` (a :class:`torm.types.Capture` with masks -> :class:`torm.types.Reconstruction`)
+configured by :class:`ReconstructionConfig` (``mode="fast"``: visual hull [+ refinement]; ``"paper"``: DMTet-Multi).
+"""
+
+from torm.reconstruction.api import ReconstructionConfig, reconstruct
+from torm.reconstruction.dmtet import DMTetConfig, DMTetResult, optimise_dmtet
+from torm.reconstruction.losses import (
+    alpha_schedule,
+    eikonal_loss_edges,
+    envelope_mask_loss,
+    mask_loss_init,
+    robust_view_weights,
+)
+from torm.reconstruction.marching_tets import marching_tets
+from torm.reconstruction.raster import render_depth, render_mask, render_silhouette, render_silhouettes
+from torm.reconstruction.tetgrid import TetGrid, build_tet_grid
+from torm.reconstruction.visual_hull import visual_hull_sdf
+
+__all__ = [
+    "DMTetConfig",
+    "DMTetResult",
+    "ReconstructionConfig",
+    "TetGrid",
+    "alpha_schedule",
+    "build_tet_grid",
+    "eikonal_loss_edges",
+    "envelope_mask_loss",
+    "mask_loss_init",
+    "marching_tets",
+    "optimise_dmtet",
+    "reconstruct",
+    "render_depth",
+    "render_mask",
+    "render_silhouette",
+    "render_silhouettes",
+    "robust_view_weights",
+    "visual_hull_sdf",
+]
