@@ -34,6 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from torm.runtime import ensure_headless_gl
+
+    ensure_headless_gl()  # before anything imports mujoco: it picks its GL backend at import time
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose + 1, 2)

@@ -85,6 +85,9 @@ class TrialConfig:
         robot: robot folder name or robot YAML path.
         re_perceive: capture and reconstruct again before every pick after the first.
         depth_view: view index for the depth baseline (None: the most top-down view).
+        hardware_config: hardware YAML for ``backend="real"`` (host, serial port, hand-eye file...;
+            default: $TORM_HARDWARE_CONFIG).
+        arm_robot: allow the real arm to move (otherwise the real backend refuses every motion).
     """
 
     scenario: str = "rw3"
@@ -94,6 +97,8 @@ class TrialConfig:
     robot: str = "inovo_2f85"
     re_perceive: bool = False
     depth_view: int | None = None
+    hardware_config: str | None = None
+    arm_robot: bool = False
     capture: CaptureSettings = field(default_factory=CaptureSettings)
     segmentation: SegmentationSettings = field(default_factory=SegmentationSettings)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
@@ -291,7 +296,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         t = time.perf_counter()
         try:
             dirs = free_directions(xy, others, workspace, config.pick.translate_distance)
-            res = execute_pick(backend, cands, dirs, config.success, config.pick)
+            confirm = backend.operator_confirm() if hasattr(backend, "operator_confirm") else None
+            res = execute_pick(backend, cands, dirs, config.success, config.pick, operator_confirm=confirm)
         except ExecutionError as exc:
             done[label] = _obj(label, names, Outcome.OTHER, str(exc))
             continue

@@ -27,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", type=int, default=None, help="number of views (default 50)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
     p.add_argument("--robot-config", default=None, help="robot folder name or robot YAML (default inovo_2f85)")
+    p.add_argument("--hardware-config", default=None, metavar="FILE",
+                   help="hardware YAML for --backend real (rosbridge host, gripper serial port, hand-eye file)")
+    p.add_argument("--arm-robot", action="store_true",
+                   help="allow the real arm to move (without it --backend real refuses every motion)")
     p.add_argument("--re-perceive", action="store_true", help="capture and reconstruct again before every pick")
     p.add_argument("--record", default=None, metavar="FILE.rrd",
                    help="write a rerun recording (images, masks, meshes, grasps, motion)")
@@ -43,11 +47,13 @@ def trial_config_from_args(args: argparse.Namespace):
     flags = {
         "scenario": args.scenario, "seed": args.seed, "method": args.method, "backend": args.backend,
         "robot": args.robot_config, "segmentation.segmenter": args.segmenter, "segmentation.preset": args.preset,
-        "capture.n_views": args.views,
+        "capture.n_views": args.views, "hardware_config": getattr(args, "hardware_config", None),
     }
     overrides = [f"{k}={v}" for k, v in flags.items() if v is not None]
     if getattr(args, "re_perceive", False):
         overrides.append("re_perceive=true")
+    if getattr(args, "arm_robot", False):
+        overrides.append("arm_robot=true")
     data = cfgmod.load_yaml(args.config) if args.config else {}
     return cfgmod.from_dict(TrialConfig, data, overrides + list(args.overrides), where=args.config or "TrialConfig")
 

@@ -1,0 +1,76 @@
+"""torm/TormGraspSelect-v0: gymnasium's checker, features that describe the planner's candidates, and the
+planner's best grasp (action 0) picking the rw1 glass cylinder by the paper's success test."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import torm.env  # noqa: F401  (registers the envs)
+from torm.env.errors import InvalidActionError
+from torm.env.grasp_select_env import FEATURE_NAMES, TormGraspSelectEnv
+from torm.errors import ConfigError, UnknownNameError
+
+
+def test_registered_env_passes_the_gymnasium_checker():
+    env = gym.make("torm/TormGraspSelect-v0", scenario="rw1", top_k=4)
+    try:
+        check_env(env.unwrapped, skip_close_check=True)
+        assert env.action_space == gym.spaces.Discrete(4)
+        assert env.observation_space["candidates"].shape == (4, len(FEATURE_NAMES))
+    finally:
+        env.close()
+
+
+def test_planner_best_candidate_picks_the_rw1_cylinder():
+    env = TormGraspSelectEnv(scenario="rw1", perception="oracle", render_mode="rgb_array")
+    try:
+        obs, info = env.reset(seed=0)
+        assert info["target_object"] == 1 and info["n_candidates"] == 8 and obs["valid"].tolist() == [1] * 8
+        cands = env.candidates
+        scores = [g.score for g in cands]
+        assert scores == sorted(scores, reverse=True)  # index 0 = the planner's best
+        f = obs["candidates"]
+        c = obs["object_summary"][:3]
+        T0 = cands[0].T_world_grasp
+        assert np.allclose(f[0, 0:3], T0[:3, 3] - c, atol=1e-6) and np.allclose(f[0, 3:6], T0[:3, 0], atol=1e-6)
+        assert np.allclose(f[:, FEATURE_NAMES.index("score")], scores, atol=1e-6)
+        # the cylinder (60 mm x 100 mm) seen through the oracle cloud: centroid on the object, 6 x 6 x 10 cm box
+        true_c = env.backend.world.objects[0].T_world_obj[:3, 3]
+        assert np.allclose(c[:2], true_c[:2], atol=0.005) and 0.03 < c[2] < 0.07
+        assert np.allclose(obs["object_summary"][3:6], [0.06, 0.06, 0.10], atol=0.005)
+        assert np.all(np.abs(obs["object_points"]) < 0.07)
+        rest = env.backend.ground_truth.object_poses()[1][:3, 3]
+        obs2, reward, terminated, truncated, info = env.step(0)
+        assert reward == 1.0 and terminated and not truncated, info
+        assert info["outcome"] == "success" and info["pick"]["judgement"]["lift_m"] >= 0.24
+        moved = np.linalg.norm(env.backend.ground_truth.object_poses()[1][:2, 3] - rest[:2])
+        assert abs(moved - 0.20) < 0.01  # really translated 20 cm and put back
+        assert env.render().shape == (240, 320, 3)
+        with pytest.raises(ConfigError, match="one step"):
+            env.step(1)
+        # the same seed gives the same candidates
+        obs3, _ = env.reset(seed=0)
+        assert np.array_equal(obs3["candidates"], obs["candidates"])
+    finally:
+        env.close()
+
+
+def test_bad_actions_and_missing_candidates():
+    env = TormGraspSelectEnv(scenario="rw1", top_k=4, n_points=512)
+    try:
+        env.reset(seed=1)
+        with pytest.raises(InvalidActionError, match=r"0\.\.3"):
+            env.step(4)
+        with pytest.raises(InvalidActionError, match="Discrete"):
+            env.step(1.5)
+        env._grasps = env._grasps[:2]  # fewer candidates than K: choosing a missing one fails without moving
+        t0 = env.backend.clock.now()
+        _, r, term, _, info = env.step(3)
+        assert r == 0.0 and term and info["invalid_choice"] and env.backend.clock.now() == t0
+        with pytest.raises(UnknownNameError, match="oracle"):
+            TormGraspSelectEnv(perception="lidar")
+    finally:
+        env.close()
