@@ -266,8 +266,9 @@ def _add_object(spec: mujoco.MjSpec, k: int, a: ObjectAsset, pose: Placement, dr
     common = dict(group=GROUP_COLLISION, friction=list(OBJECT_FRICTION), density=0.0, rgba=[0.9, 0.4, 0.2, 0.5])
     if a.collision == "sphere":
         r = float(a.mesh.bounds[1, 2] / 2.0)
+        # condim 6 enables the rolling friction: without it a released ball rolls on forever.
         body.add_geom(name=f"obj{k}_{a.name}_col0", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0],
-                      pos=[0, 0, r], **common)
+                      pos=[0, 0, r], condim=6, **common)
     else:
         for i in range(len(a.collision_hulls())):
             body.add_geom(name=f"obj{k}_{a.name}_col{i}", type=mujoco.mjtGeom.mjGEOM_MESH,

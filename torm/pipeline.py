@@ -297,7 +297,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         try:
             dirs = free_directions(xy, others, workspace, config.pick.translate_distance)
             confirm = backend.operator_confirm() if hasattr(backend, "operator_confirm") else None
-            res = execute_pick(backend, cands, dirs, config.success, config.pick, operator_confirm=confirm)
+            res = execute_pick(backend, cands, dirs, config.success, config.pick, operator_confirm=confirm,
+                               ignore_ids=[j for j in done if j != label])
         except ExecutionError as exc:
             done[label] = _obj(label, names, Outcome.OTHER, str(exc))
             continue

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -212,7 +212,8 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
                  criteria: SuccessCriteria | None = None, config: PickConfig | None = None, *,
                  ik: IKSolver | None = None, tool: ToolFrame | None = None,
                  collision: RobotCollisionChecker | None = None,
-                 operator_confirm: Callable[[PickResult], bool] | None = None) -> PickResult:
+                 operator_confirm: Callable[[PickResult], bool] | None = None,
+                 ignore_ids: Collection[int] = ()) -> PickResult:
     """Pick one object: the first reachable candidate (in order) is executed and judged.
 
     Args:
@@ -228,6 +229,8 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
             ``config.check_robot_collisions`` (none without a robot config).
         operator_confirm: real robot only: called after the release with the provisional result; returning False
             turns a success into ``not_released``.
+        ignore_ids: objects left out of the disturbance checks (e.g. ones this trial already picked and put
+            down elsewhere: a released ball may still be rolling).
 
     Returns a :class:`PickResult`; errors of the motion itself (physics blow-ups, safety refusals) are reported as
     outcomes, not raised.
@@ -260,7 +263,7 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
     run = _Runner(backend, cfg)
     res.phases = run.phases
     try:
-        _run_pick(backend, plan, run, res, cfg, crit, tool, operator_confirm)
+        _run_pick(backend, plan, run, res, cfg, crit, tool, operator_confirm, frozenset(ignore_ids))
     except PhysicsError as exc:
         res.outcome, res.message = Outcome.PHYSICS, str(exc)
         log.warning("pick aborted: %s", exc)
@@ -272,10 +275,13 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
 
 
 def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, cfg: PickConfig,
-              crit: SuccessCriteria, tool: ToolFrame, operator_confirm: Callable[[PickResult], bool] | None) -> None:
+              crit: SuccessCriteria, tool: ToolFrame, operator_confirm: Callable[[PickResult], bool] | None,
+              ignore_ids: frozenset[int] = frozenset()) -> None:
     g, arm, grip = plan.grasp, backend.arm, backend.gripper
     k = int(g.object_id)
     before = _positions(backend)
+    if before is not None:
+        before = {j: p for j, p in before.items() if j == k or j not in ignore_ids}
     if before is not None and k not in before:
         raise ExecutionError(f"grasp targets object {k} but the scene has objects {sorted(before)}")
     open_w = min(tool.max_opening, g.width + cfg.open_margin)

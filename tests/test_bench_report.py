@@ -1,0 +1,134 @@
+"""``torm report``: the tables hold the numbers of the rows; plots are written; problems are reported."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from torm.bench import BenchConfig, run_benchmark
+from torm.bench.report import load_run, success_counts, throughput, write_report
+from torm.bench.results import read_results
+from torm.errors import BenchmarkError
+
+TESTS_DIR = str(Path(__file__).resolve().parent)
+
+
+@pytest.fixture(scope="module")
+def run_dirs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("report")
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (TESTS_DIR, old) if p)
+    try:
+        kw = {"suite": "rw", "scenarios": ("rw1", "rw3", "rw4"), "trials": 3, "methods": ("torm", "depth"),
+              "workers": 2, "trial_fn": "bench_fake_trials:run", "timeout_s": 20.0}
+        run_benchmark(BenchConfig(overrides=("fake.crash=rw3/2",), **kw), root / "a", progress=False)
+        run_benchmark(BenchConfig(base_seed=7, **kw), root / "b", progress=False)
+    finally:
+        if old is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = old
+    return root
+
+
+def _table(md: str, first_header: str) -> list[list[str]]:
+    """Rows of the first Markdown table whose header starts with ``first_header``."""
+    lines = md.splitlines()
+    start = next(i for i, x in enumerate(lines) if x.startswith(f"| {first_header} |"))
+    out = []
+    for x in lines[start + 2:]:
+        if not x.startswith("|"):
+            break
+        out.append([c.strip() for c in x.strip("|").split("|")])
+    return out
+
+
+def test_report_numbers_match_rows(run_dirs):
+    summary = write_report([run_dirs / "a"])
+    md = (run_dirs / "a" / "report.md").read_text()
+    rows = read_results(run_dirs / "a" / "results.jsonl").rows
+    table = _table(md, "Scenario")
+    by_sc = {r[0]: r for r in table}
+    assert set(by_sc) == {"rw1", "rw3", "rw4", "**all**"}
+    header = next(x for x in md.splitlines() if x.startswith("| Scenario |"))
+    cols = [c.strip() for c in header.strip("|").split("|")]
+    assert cols == ["Scenario", "OCC", "Objects", "torm success", "depth success"]
+    for sc in ("rw1", "rw3", "rw4"):
+        for m in ("torm", "depth"):
+            sel = [r for r in rows if r["scenario"] == sc and r["method"] == m]
+            k = sum(o["outcome"] == "success" for r in sel for o in r["objects"])
+            n = sum(len(r["objects"]) for r in sel)
+            assert by_sc[sc][cols.index(f"{m} success")] == f"{k}/{n} ({100 * k / n:.0f}%)"
+    # rw3 torm: one crashed trial counts its two objects as failed
+    assert sum(len(r["objects"]) for r in rows if r["scenario"] == "rw3" and r["method"] == "torm") == 6
+    assert by_sc["rw1"][1] == "10%"  # OCC from perception.occlusion_ratio of the rows
+    assert by_sc["rw4"][2].startswith("3 (ball, cube, toothpick_box)")
+    k, n = success_counts(rows, None, "torm")
+    assert by_sc["**all**"][cols.index("torm success")] == f"**{k}/{n} ({100 * k / n:.0f}%)**"
+    assert summary["runs"][0]["success"]["torm"] == {"k": k, "n": n}
+    # failure categories: one crashed trial per method (crash=rw3/2 hits both methods)
+    fail = {r[0]: r[1:] for r in _table(md, "Trial failure")}
+    assert fail == {"crashed": ["1", "1"]}
+    outcome = {r[0]: r[1:] for r in _table(md, "Outcome")}
+    assert outcome["crashed"] == ["2", "2"]
+    assert int(outcome["success"][0]) == k
+    # reconstruction: IoU only for torm rows, found/present summed
+    rec = {(r[0], r[1]): r for r in _table(md.split("## Reconstruction")[1], "Scenario")}
+    sel = [r for r in rows if r["scenario"] == "rw4" and r["method"] == "torm"]
+    mean_iou = sum(r["perception"]["silhouette_iou_mean"] for r in sel) / len(sel)
+    assert rec[("rw4", "torm")][3].startswith(f"{mean_iou:.3f}")
+    assert rec[("rw4", "depth")][3] == "–"
+    found = sum(r["perception"]["n_objects_found"] for r in sel)
+    assert rec[("rw4", "torm")][5] == f"{found}/{3 * len(sel)}"
+    # timing means (fake timings are fixed: total 4.0 s for torm)
+    timing = {r[0]: r for r in _table(md, "Method")}
+    assert timing["torm"][1:8] == ["0.10", "0.20", "0.30", "1.00", "0.40", "2.00", "4.00"]
+    # throughput from the manifest session timestamps
+    sess = throughput(load_run(run_dirs / "a"))
+    assert len(sess) == 1 and sess[0]["trials"] == 18
+    assert "trials/hour" in md
+    for name in ("success_by_scenario.png", "iou_distribution.png", "timing_stack.png"):
+        data = (run_dirs / "a" / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000
+    html = (run_dirs / "a" / "report.html").read_text()
+    assert "<table>" in html and "success_by_scenario.png" in html
+
+
+def test_report_cli_compares_two_runs_and_reports_corrupted_lines(run_dirs, tmp_path):
+    import shutil
+
+    b = tmp_path / "b"
+    shutil.copytree(run_dirs / "b", b)
+    lines = (b / "results.jsonl").read_bytes().split(b"\n")
+    lines[4] = b'{"key": "rw/rw1/1/depth", truncated garbage'
+    (b / "results.jsonl").write_bytes(b"\n".join(lines))
+    out = tmp_path / "cmp"
+    done = subprocess.run([sys.executable, "-m", "torm.cli", "report", str(run_dirs / "a"), str(b), "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["runs"][1]["rows"] == 17
+    assert any("line 5 is corrupted" in p for p in summary["runs"][1]["problems"])
+    md = (out / "report.md").read_text()
+    assert "line 5 is corrupted" in md
+    cmp_rows = _table(md, "Scenario | Method")
+    total = [r for r in cmp_rows if r[0] == "**all**" and r[1] == "torm"][0]
+    ka, na = success_counts(read_results(run_dirs / "a" / "results.jsonl").rows, None, "torm")
+    kb, nb = success_counts(read_results(b / "results.jsonl").rows, None, "torm")
+    assert total[2:] == [f"{ka}/{na} ({100 * ka / na:.0f}%)", f"{kb}/{nb} ({100 * kb / nb:.0f}%)",
+                         f"{100 * kb / nb - 100 * ka / na:+.0f}"]
+    assert (out / "a_success_by_scenario.png").exists() and (out / "b_timing_stack.png").exists()
+    assert re.search(r"Throughput: A [\d.]+ trials/hour, B [\d.]+ trials/hour", md)
+
+
+def test_report_errors(tmp_path):
+    with pytest.raises(BenchmarkError, match="no results.jsonl"):
+        write_report([tmp_path])
+    with pytest.raises(BenchmarkError, match="two to compare"):
+        write_report([tmp_path, tmp_path, tmp_path])

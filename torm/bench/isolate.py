@@ -1,0 +1,221 @@
+"""Run one trial in its own fresh Python process with a wall-clock limit and turn whatever happens
+into a result row.
+
+Why a fresh interpreter per trial (``subprocess`` running ``python -m torm.bench.worker``, the
+equivalent of multiprocessing's "spawn" context): MuJoCo's EGL contexts and torch's thread pools do
+not survive ``fork`` after threads, a segfault or a leaked GL context must not take the runner or the
+next trial with it, and a hung trial can only be stopped reliably by killing its process. The worker
+runs in its own session (process group); a timeout kills the whole group with SIGKILL.
+
+Costs about one interpreter start per trial (0.1 s, plus the trial's own imports), negligible
+against a closed-loop trial (tens of seconds to minutes).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from torm.bench.results import utc_now
+from torm.bench.rows import failure_row, ok_row, trial_failed
+from torm.bench.spec import TrialSpec
+
+log = logging.getLogger(__name__)
+
+LOG_TAIL_CHARS = 2000
+THREAD_ENV = ("TORM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class TrialJob:
+    """How to run one trial (everything but the spec). Times in s.
+
+    Attributes:
+        trial_fn: ``module:function`` of the trial function.
+        overrides: ``a.b=c`` trial config overrides.
+        timeout_s: wall-clock limit; the process group is killed after it.
+        threads: torch/BLAS threads of the worker (exported as TORM_THREADS, OMP_NUM_THREADS, ...).
+        record: ``none`` | ``failures`` | ``all``.
+        recordings_dir: where ``<key>.rrd`` recordings go (when ``record`` is not ``none``).
+        logs_dir: where the worker's log is kept for failed trials (None: not kept).
+        engine: recorded in the row's ``run`` metadata.
+        session: the runner session id, recorded in ``run``.
+    """
+
+    trial_fn: str
+    overrides: tuple[str, ...] = ()
+    timeout_s: float = 1800.0
+    threads: int = 1
+    record: str = "none"
+    recordings_dir: str | None = None
+    logs_dir: str | None = None
+    engine: str = "pool"
+    session: int = 0
+
+
+@dataclass
+class Canceller:
+    """Lets the runner stop every running worker (Ctrl-C, SIGTERM, an error in the runner)."""
+
+    stop: threading.Event = field(default_factory=threading.Event)
+    running: set[subprocess.Popen] = field(default_factory=set)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def cancel(self) -> None:
+        self.stop.set()
+        with self.lock:
+            procs = list(self.running)
+        for p in procs:
+            _kill_group(p)
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        with contextlib.suppress(ProcessLookupError):
+            proc.kill()
+
+
+def safe_name(key: str) -> str:
+    """A file name for a trial key (``rw/rw3/0/torm`` -> ``rw__rw3__0__torm``)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in key.replace("/", "__"))
+
+
+def _signal_name(rc: int) -> str:
+    try:
+        return signal.Signals(-rc).name
+    except ValueError:
+        return f"signal {-rc}"
+
+
+def _tail(path: Path, n: int = LOG_TAIL_CHARS) -> str:
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - n))
+            return f.read().decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = None) -> dict[str, Any]:
+    """Run ``spec`` in a fresh worker process and return its result row (never raises for trial failures).
+
+    Categories: the trial function's record (``status`` ok), ``error``/``physics_error``/... when it
+    raised, ``timeout`` when it ran past ``job.timeout_s``, ``crashed`` when the process died without a
+    result (segfault, ``os._exit``, OOM kill; the message names the signal or exit code). The row's
+    ``run`` holds the worker's pid, times, return code and, for failed trials, the tail of its log
+    (``log_tail``) and the kept log file (``log``).
+    """
+    scratch = Path(tempfile.mkdtemp(prefix="torm-trial-"))
+    job_path, result_path, log_path = scratch / "job.json", scratch / "result.json", scratch / "worker.log"
+    record_path = None
+    if job.record != "none" and job.recordings_dir:
+        Path(job.recordings_dir).mkdir(parents=True, exist_ok=True)
+        record_path = str(Path(job.recordings_dir) / f"{safe_name(spec.key)}.rrd")
+    job_path.write_text(json.dumps({
+        "spec": spec.as_dict(), "overrides": list(job.overrides), "trial_fn": job.trial_fn,
+        "record_path": record_path, "result_path": str(result_path), "parent_pid": os.getpid(),
+    }))
+    env = dict(os.environ)
+    for name in THREAD_ENV:
+        env[name] = str(job.threads)
+    env.setdefault("MUJOCO_GL", "egl")
+    env["PYTHONUNBUFFERED"] = "1"
+    started, t0 = utc_now(), time.monotonic()
+    status = None
+    proc = None
+    try:
+        cmd = [sys.executable, "-m", "torm.bench.worker", str(job_path)]
+        with open(log_path, "wb") as logf:
+            if canceller is None:
+                proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
+                                        env=env, start_new_session=True)
+            else:
+                with canceller.lock:  # cancel() sets stop before taking the lock: no worker escapes it
+                    if canceller.stop.is_set():
+                        raise InterruptedError("benchmark cancelled before the trial started")
+                    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
+                                            env=env, start_new_session=True)
+                    canceller.running.add(proc)
+        try:
+            rc = proc.wait(timeout=job.timeout_s)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            proc.wait()
+            status = "timeout"
+            rc = proc.returncode
+        finally:
+            if canceller is not None:
+                with canceller.lock:
+                    canceller.running.discard(proc)
+            if status != "timeout" and proc is not None:
+                # Grandchildren (e.g. a renderer helper) must not outlive the trial either.
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+        wall = time.monotonic() - t0
+        if canceller is not None and canceller.stop.is_set():
+            raise InterruptedError("benchmark cancelled while the trial ran")
+        row = _row(spec, job, status, rc, result_path)
+        failed = trial_failed(row)
+        row["run"] = {"engine": job.engine, "worker": f"{socket.gethostname()}:{proc.pid}", "started": started,
+                      "finished": utc_now(), "wall_s": round(wall, 3), "threads": job.threads,
+                      "session": job.session, "returncode": rc, "log": None, "recording": None,
+                      "log_tail": _tail(log_path) if row["status"] != "ok" else None}
+        if failed and job.logs_dir:
+            try:
+                Path(job.logs_dir).mkdir(parents=True, exist_ok=True)
+                dest = Path(job.logs_dir) / f"{safe_name(spec.key)}.log"
+                shutil.copyfile(log_path, dest)
+                row["run"]["log"] = str(dest)
+            except OSError as exc:
+                log.warning("could not keep the log of %s: %s", spec.key, exc)
+        if record_path and Path(record_path).exists():
+            if job.record == "failures" and not failed:
+                Path(record_path).unlink()  # --record failures: recordings of successful trials are not kept
+            else:
+                row["run"]["recording"] = record_path
+        return row
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def timeout_message(timeout_s: float) -> str:
+    """The message of a timeout row (the same for every engine)."""
+    return f"trial ran longer than the {timeout_s:g} s limit and was killed"
+
+
+def _row(spec: TrialSpec, job: TrialJob, status: str | None, rc: int | None, result_path: Path) -> dict[str, Any]:
+    """The row's content; deterministic for a given trial outcome (no times, no log text: those go in ``run``)."""
+    if status == "timeout":
+        return failure_row(spec, "timeout", "timeout", timeout_message(job.timeout_s))
+    if result_path.exists():
+        try:
+            result = json.loads(result_path.read_text())
+        except ValueError as exc:
+            return failure_row(spec, "crashed", "crashed", f"unreadable worker result ({exc})")
+        if result.get("status") == "ok":
+            return ok_row(spec, result["record"])
+        row = failure_row(spec, "error", result.get("failure") or "error", result.get("message", ""))
+        row["traceback"] = result.get("traceback", "")
+        return row
+    how = f"killed by {_signal_name(rc)}" if rc is not None and rc < 0 else f"exited with code {rc}"
+    return failure_row(spec, "crashed", "crashed", f"worker process {how} without a result (see run.log_tail)")
+
+
+__all__ = ["Canceller", "TrialJob", "run_isolated", "safe_name"]

@@ -1,0 +1,104 @@
+"""The Ray engine: the same isolated trials as Ray remote tasks (``pip install torm[distributed]``).
+
+Each task runs :func:`torm.bench.isolate.run_isolated` on whichever node Ray picks, so a trial is a
+fresh worker process there exactly as with the local pool, and the row is built the same way (only
+``run.engine``/``run.worker`` differ). The task enforces ``timeout_s`` itself; as a backstop the
+driver cancels (``ray.cancel(force=True)``) a task still running ``timeout_s + grace_s`` after it was
+submitted and records ``timeout``; a task whose Ray worker died is recorded as ``crashed``. At most
+``workers`` tasks are in flight, so submission time is start time. Tasks are never retried
+(``max_retries=0``): a crash is a result, not something to hide.
+
+Paths: recordings and kept logs are written on the node that ran the trial, at the run folder's
+path; on a multi-node cluster that folder should be on a shared file system (rows come back to the
+driver regardless). Every node needs torm installed in the same environment. A task cancelled by
+the driver's backstop is killed with its trial process (Ray reaps a killed worker's children), which
+may leave that trial's small scratch folder (``torm-trial-*``: job file and log) in the node's temp dir.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+from torm.bench.isolate import TrialJob, run_isolated, timeout_message
+from torm.bench.rows import failure_row
+from torm.bench.spec import TrialSpec
+from torm.errors import BenchmarkError
+
+log = logging.getLogger(__name__)
+
+
+def _ray_trial(spec: TrialSpec, job: TrialJob) -> dict[str, Any]:
+    import ray
+
+    row = run_isolated(spec, job)
+    try:
+        row["run"]["node"] = ray.get_runtime_context().get_node_id()
+    except Exception:  # noqa: BLE001 - metadata only
+        row["run"]["node"] = None
+    return row
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError as exc:
+        raise BenchmarkError("engine 'ray' needs Ray: pip install 'torm[distributed]' (ray==2.60.0)") from exc
+    return ray
+
+
+def ray_rows(specs: Sequence[TrialSpec], job: TrialJob, workers: int, address: str | None = None,
+             grace_s: float = 60.0, poll_s: float = 1.0) -> Iterator[dict[str, Any]]:
+    """Yield one row per spec as Ray tasks finish.
+
+    ``address``: a running cluster (``ray.init(address=...)``, e.g. ``auto`` or ``ray://host:10001``);
+    None starts a local Ray with ``workers`` CPUs and no dashboard, shut down again at the end. An
+    already initialised Ray (e.g. in tests) is used as it is and left running.
+    """
+    ray = _import_ray()
+    started_here = False
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        started_here = True
+    remote = ray.remote(num_cpus=1, max_retries=0)(_ray_trial)
+    todo = list(specs)
+    in_flight: dict[Any, tuple[TrialSpec, float]] = {}
+    deadline_s = job.timeout_s + grace_s
+    try:
+        while todo or in_flight:
+            while todo and len(in_flight) < workers:
+                spec = todo.pop(0)
+                in_flight[remote.remote(spec, job)] = (spec, time.monotonic())
+            ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=poll_s)
+            for ref in ready:
+                spec, t0 = in_flight.pop(ref)
+                try:
+                    yield ray.get(ref)
+                except ray.exceptions.RayError as exc:  # the Ray worker died (or the task could not run)
+                    log.warning("ray task of %s failed: %s", spec.key, exc)
+                    row = failure_row(spec, "crashed", "crashed", f"ray task failed: {type(exc).__name__}")
+                    row["run"] = {"engine": "ray", "worker": None, "wall_s": round(time.monotonic() - t0, 3),
+                                  "session": job.session, "log_tail": str(exc)[-2000:]}
+                    yield row
+            now = time.monotonic()
+            for ref, (spec, t0) in list(in_flight.items()):
+                if now - t0 > deadline_s:
+                    ray.cancel(ref, force=True)
+                    in_flight.pop(ref)
+                    row = failure_row(spec, "timeout", "timeout", timeout_message(job.timeout_s))
+                    row["run"] = {"engine": "ray", "worker": None, "wall_s": round(now - t0, 3),
+                                  "session": job.session, "log_tail": "cancelled by the driver (ray.cancel)"}
+                    yield row
+    finally:
+        for ref in in_flight:
+            ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
+
+
+__all__ = ["ray_rows"]

@@ -1,0 +1,487 @@
+"""``torm report RUN [RUN2]``: tables and plots from run folders (``report.md``, ``report.html``, PNGs).
+
+Sections (each only when the rows hold the data):
+
+- the paper's Table III shape: scenario, OCC (mean ``occ``, ``perception.occlusion_ratio`` or ``occlusion_ratio``
+  of the rows), objects, and per method the object success count ``k/n`` and percentage (k = picked
+  successfully, n = objects attempted, summed over trials; a timed-out or crashed trial counts its
+  objects as failed);
+- reconstruction metrics per scenario and method: silhouette IoU (``perception.silhouette_iou_mean``),
+  Chamfer distance (``perception.chamfer_mm_mean``, mm), objects found / present;
+- failure categories: per-object outcomes and trial-level failures per method;
+- per-stage timing: mean seconds per stage (``timings``) and per-trial wall time (``run.wall_s``);
+- throughput: trials per hour for every runner session (manifest timestamps);
+- plots (matplotlib, Agg): success by scenario and method, IoU distribution, timing stack.
+
+With two runs the report starts with a side-by-side comparison (success per scenario and method,
+difference in percentage points, mean trial time, throughput) followed by each run's own sections.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import html
+import logging
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from torm.bench.results import RESULTS_NAME, read_manifest, read_results
+from torm.errors import BenchmarkError
+
+log = logging.getLogger(__name__)
+
+STAGES = ("setup", "capture", "segmentation", "reconstruction", "grasp_planning", "execution")
+TRIAL_STATUSES = ("timeout", "crashed", "error")
+
+
+@dataclass
+class Run:
+    """A loaded run folder."""
+
+    name: str
+    path: Path
+    manifest: dict[str, Any] | None
+    rows: list[dict[str, Any]]
+    problems: list[str] = field(default_factory=list)
+
+
+def load_run(path: str | Path) -> Run:
+    """Read a run folder (``results.jsonl`` + optional ``manifest.json``); BenchmarkError when it has no results."""
+    p = Path(path)
+    if not (p / RESULTS_NAME).exists():
+        raise BenchmarkError(f"{p} has no {RESULTS_NAME}; give a folder written by 'torm bench --out'")
+    res = read_results(p / RESULTS_NAME)
+    return Run(name=p.name or str(p), path=p, manifest=read_manifest(p), rows=res.rows, problems=res.problems)
+
+
+# ----------------------------------------------------------------------------------------- numbers
+
+
+def _get(row: dict[str, Any], *paths: str) -> Any:
+    """First non-None value among dotted ``paths`` in ``row``."""
+    for path in paths:
+        node: Any = row
+        for part in path.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if node is not None:
+            return node
+    return None
+
+
+def _mean(values: Iterable[float | None]) -> float | None:
+    vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return sum(vals) / len(vals) if vals else None
+
+
+def _std(values: Iterable[float | None]) -> float | None:
+    vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    if len(vals) < 2:
+        return None
+    m = sum(vals) / len(vals)
+    return math.sqrt(sum((v - m) ** 2 for v in vals) / (len(vals) - 1))
+
+
+def _natural(name: str) -> tuple:
+    head = name.rstrip("0123456789")
+    tail = name[len(head):]
+    return (head, int(tail) if tail else -1)
+
+
+def scenarios_of(rows: list[dict[str, Any]]) -> list[str]:
+    return sorted({r["scenario"] for r in rows}, key=_natural)
+
+
+def methods_of(rows: list[dict[str, Any]], manifest: dict[str, Any] | None = None) -> list[str]:
+    order = list((manifest or {}).get("config", {}).get("methods", []))
+    return order + sorted({r["method"] for r in rows} - set(order))
+
+
+def success_counts(rows: list[dict[str, Any]], scenario: str | None = None,
+                   method: str | None = None) -> tuple[int, int]:
+    """(objects picked successfully, objects attempted) over the matching rows (None: any)."""
+    sel = [r for r in rows
+           if (scenario is None or r["scenario"] == scenario) and (method is None or r["method"] == method)]
+    return sum(int(r.get("n_success") or 0) for r in sel), sum(int(r.get("n_objects") or 0) for r in sel)
+
+
+def _kn(k: int, n: int) -> str:
+    return f"{k}/{n} ({100.0 * k / n:.0f}%)" if n else "–"
+
+
+def _fmt(v: float | None, digits: int = 2) -> str:
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+def occlusion(rows: list[dict[str, Any]], scenario: str) -> float | None:
+    """Mean OCC (0..1) over the scenario's rows that report one."""
+    return _mean(_get(r, "occ", "perception.occlusion_ratio", "occlusion_ratio")
+                 for r in rows if r["scenario"] == scenario)
+
+
+def throughput(run: Run) -> list[dict[str, Any]]:
+    """Per runner session: start, end (finish or last row), hours, trials run and trials per hour."""
+    out = []
+    sessions = (run.manifest or {}).get("sessions") or []
+    for s in sessions:
+        end = s.get("finished") or s.get("last_row")
+        if not s.get("started") or not end:
+            continue
+        hours = (dt.datetime.fromisoformat(end) - dt.datetime.fromisoformat(s["started"])).total_seconds() / 3600
+        n = int(s.get("trials_run") or 0)
+        out.append({"session": s.get("id"), "started": s["started"], "ended": end, "hours": hours, "trials": n,
+                    "engine": s.get("engine"), "workers": s.get("workers"),
+                    "trials_per_hour": n / hours if hours > 0 else None})
+    if not sessions:  # no manifest: estimate from the rows' own timestamps
+        times = [(r["run"].get("started"), r["run"].get("finished"))
+                 for r in run.rows if isinstance(r.get("run"), dict)]
+        times = [(a, b) for a, b in times if a and b]
+        if times:
+            t0 = min(dt.datetime.fromisoformat(a) for a, _ in times)
+            t1 = max(dt.datetime.fromisoformat(b) for _, b in times)
+            hours = (t1 - t0).total_seconds() / 3600
+            out.append({"session": None, "started": t0.isoformat(), "ended": t1.isoformat(), "hours": hours,
+                        "trials": len(times), "engine": None, "workers": None,
+                        "trials_per_hour": len(times) / hours if hours > 0 else None})
+    return out
+
+
+def overall_throughput(run: Run) -> float | None:
+    """Trials per hour over all sessions (trials run / time spent running)."""
+    sess = throughput(run)
+    hours = sum(s["hours"] for s in sess)
+    return sum(s["trials"] for s in sess) / hours if hours > 0 else None
+
+
+# ----------------------------------------------------------------------------------------- blocks
+
+Block = tuple  # ("h1"|"h2"|"h3"|"p", text) | ("table", headers, rows) | ("img", file, alt)
+
+
+def table3(run: Run) -> list[Block]:
+    rows, methods = run.rows, methods_of(run.rows, run.manifest)
+    has_occ = any(occlusion(rows, sc) is not None for sc in scenarios_of(rows))
+    headers = ["Scenario"] + (["OCC"] if has_occ else []) + ["Objects"] + [f"{m} success" for m in methods]
+    body = []
+    for sc in scenarios_of(rows):
+        sel = [r for r in rows if r["scenario"] == sc]
+        names = next((", ".join(o.get("name", "?") for o in r.get("objects", [])) for r in sel if r.get("objects")), "")
+        n_obj = max(int(r.get("n_objects") or 0) for r in sel)
+        line = [sc]
+        if has_occ:
+            occ = occlusion(rows, sc)
+            line.append("–" if occ is None else f"{100 * occ:.0f}%")
+        line += [f"{n_obj} ({names})" if names else str(n_obj)]
+        line += [_kn(*success_counts(rows, sc, m)) for m in methods]
+        body.append(line)
+    total = ["**all**"] + ([""] if has_occ else []) + [""] + [f"**{_kn(*success_counts(rows, None, m))}**"
+                                                             for m in methods]
+    body.append(total)
+    n_trials = {m: sum(r["method"] == m for r in rows) for m in methods}
+    return [("h2", "Grasp success (Table III shape)"),
+            ("p", "Objects picked successfully / objects attempted, summed over trials "
+                  f"(trials per method: {', '.join(f'{m} {n}' for m, n in n_trials.items())}). "
+                  "A trial that timed out or crashed counts all its objects as failed."),
+            ("table", headers, body)]
+
+
+def reconstruction_table(run: Run) -> list[Block]:
+    rows = run.rows
+    if not any(isinstance(r.get("perception"), dict) for r in rows):
+        return []
+    body = []
+    for sc in scenarios_of(rows):
+        for m in methods_of(rows, run.manifest):
+            sel = [r for r in rows
+                   if r["scenario"] == sc and r["method"] == m and isinstance(r.get("perception"), dict)]
+            if not sel:
+                continue
+            iou = [_get(r, "perception.silhouette_iou_mean") for r in sel]
+            cd = [_get(r, "perception.chamfer_mm_mean") for r in sel]
+            found = sum(int(_get(r, "perception.n_objects_found") or 0) for r in sel)
+            present = sum(int(_get(r, "perception.n_objects_present") or r.get("n_objects") or 0) for r in sel)
+            iou_m, iou_s = _mean(iou), _std(iou)
+            body.append([sc, m, str(len(sel)),
+                         _fmt(iou_m, 3) + (f" ± {iou_s:.3f}" if iou_s is not None else ""),
+                         _fmt(_mean(cd), 2), f"{found}/{present}"])
+    return [("h2", "Reconstruction"),
+            ("p", "Per scenario and method over the trials that reached perception: silhouette IoU (mean ± std "
+                  "of the per-trial mean), Chamfer distance (mm, mean of per-trial means), objects found / present."),
+            ("table", ["Scenario", "Method", "Trials", "Silhouette IoU", "Chamfer (mm)", "Found/present"], body)]
+
+
+def failure_table(run: Run) -> list[Block]:
+    rows, methods = run.rows, methods_of(run.rows, run.manifest)
+    counts: dict[str, dict[str, int]] = {}
+    for r in rows:
+        for o in r.get("objects", []):
+            counts.setdefault(o.get("outcome", "?"), {}).setdefault(r["method"], 0)
+            counts[o.get("outcome", "?")][r["method"]] += 1
+    order = sorted(counts, key=lambda c: (c != "success", c))
+    body = [[c] + [str(counts[c].get(m, 0)) for m in methods] for c in order]
+    trial_body = []
+    cats = sorted({r.get("failure") for r in rows if r.get("failure")})
+    for c in cats:
+        trial_body.append([c] + [str(sum(1 for r in rows if r["method"] == m and r.get("failure") == c))
+                                 for m in methods])
+    out: list[Block] = [("h2", "Outcomes and failure categories"),
+                        ("p", "Per-object outcomes (count of objects) per method."),
+                        ("table", ["Outcome"] + methods, body)]
+    if trial_body:
+        out += [("p", "Trial-level failures (count of trials): the trial's own failure or the runner's "
+                      "(timeout, crashed, error, ...)."),
+                ("table", ["Trial failure"] + methods, trial_body)]
+    return out
+
+
+def stages_of(rows: list[dict[str, Any]]) -> list[str]:
+    """The pipeline stages in :data:`STAGES` order, then any other stage the rows time (``total`` excluded)."""
+    extra = sorted({k for r in rows for k in (r.get("timings") or {}) if k not in STAGES and k != "total"})
+    return [*STAGES, *extra]
+
+
+def timing_means(rows: list[dict[str, Any]], method: str) -> dict[str, float | None]:
+    """Mean seconds per stage (and ``total``) over the method's rows that returned; ``wall`` over all its rows."""
+    sel = [r for r in rows if r["method"] == method and r.get("status") == "ok"]
+    out = {s: _mean(_get(r, f"timings.{s}") for r in sel) for s in stages_of(rows)}
+    out["total"] = _mean(_get(r, "timings.total") for r in sel)
+    out["wall"] = _mean(_get(r, "run.wall_s") for r in rows if r["method"] == method)
+    return out
+
+
+def timing_table(run: Run) -> list[Block]:
+    methods, stages = methods_of(run.rows, run.manifest), stages_of(run.rows)
+    body = []
+    for m in methods:
+        t = timing_means(run.rows, m)
+        body.append([m] + [_fmt(t[s]) for s in stages] + [_fmt(t["total"]), _fmt(t["wall"])])
+    return [("h2", "Time per stage"),
+            ("p", "Mean seconds per stage over trials that returned; `wall` is the mean wall time of a trial's "
+                  "worker process (all trials, including start-up)."),
+            ("table", ["Method", *stages, "total", "wall"], body)]
+
+
+def throughput_table(run: Run) -> list[Block]:
+    sess = throughput(run)
+    if not sess:
+        return []
+    body = [[str(s["session"] if s["session"] is not None else "–"), s["started"], s["ended"], f"{s['hours']:.3f}",
+             str(s["trials"]), f"{s['engine'] or '–'} x{s['workers'] or '–'}", _fmt(s["trials_per_hour"], 1)]
+            for s in sess]
+    total = overall_throughput(run)
+    return [("h2", "Throughput"),
+            ("p", f"Overall: **{_fmt(total, 1)} trials/hour**."),
+            ("table", ["Session", "Started", "Ended", "Hours", "Trials", "Engine", "Trials/hour"], body)]
+
+
+def summary_blocks(run: Run) -> list[Block]:
+    m = run.manifest or {}
+    cfg = m.get("config", {})
+    git = m.get("git") or {}
+    n_grid = (m.get("grid") or {}).get("n_trials")
+    lines = [f"Run folder `{run.path}`: {len(run.rows)} trial rows"
+             + (f" of {n_grid} in the grid" if n_grid else "") + "."]
+    if cfg:
+        lines.append(f"Suite `{cfg.get('suite')}`, methods {', '.join(cfg.get('methods', []))}, "
+                     f"{cfg.get('trials')} trial(s) per scenario, timeout {cfg.get('timeout_s')} s, "
+                     f"overrides: {', '.join(f'`{o}`' for o in cfg.get('overrides', [])) or 'none'}, "
+                     f"trial function `{cfg.get('trial_fn')}`.")
+    if git:
+        lines.append(f"Git {git.get('commit') or 'unknown'}" + (" (dirty)" if git.get("dirty") else "")
+                     + f"; config hash {m.get('config_hash')}.")
+    out: list[Block] = [("p", " ".join(lines))]
+    if run.problems:
+        out += [("h3", "Problems in the results file")] + [("p", p) for p in run.problems]
+    return out
+
+
+# ----------------------------------------------------------------------------------------- plots
+
+
+def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
+    """Write the PNGs; returns image blocks for those written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows, methods, scen = run.rows, methods_of(run.rows, run.manifest), scenarios_of(run.rows)
+    blocks: list[Block] = []
+    # success by scenario and method
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.9 * len(scen) * max(1, len(methods)) * 0.6 + 2), 3.5))
+    width = 0.8 / max(1, len(methods))
+    for i, m in enumerate(methods):
+        vals = []
+        for sc in scen:
+            k, n = success_counts(rows, sc, m)
+            vals.append(100.0 * k / n if n else 0.0)
+        ax.bar([j + i * width - 0.4 + width / 2 for j in range(len(scen))], vals, width, label=m)
+    ax.set_xticks(range(len(scen)), scen)
+    ax.set_ylabel("object success (%)")
+    ax.set_ylim(0, 105)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.set_title(f"{run.name}: success by scenario")
+    fig.tight_layout()
+    name = f"{prefix}success_by_scenario.png"
+    fig.savefig(out_dir / name, dpi=110)
+    plt.close(fig)
+    blocks.append(("img", name, "success by scenario and method"))
+    # IoU distribution
+    iou = {m: [v for r in rows if r["method"] == m and (v := _get(r, "perception.silhouette_iou_mean")) is not None]
+           for m in methods}
+    if any(iou.values()):
+        fig, ax = plt.subplots(figsize=(5, 3.2))
+        for m, vals in iou.items():
+            if vals:
+                ax.hist(vals, bins=min(20, max(5, len(vals))), range=(0.0, 1.0), alpha=0.6, label=m)
+        ax.set_xlabel("silhouette IoU (per-trial mean)")
+        ax.set_ylabel("trials")
+        ax.legend()
+        fig.tight_layout()
+        name = f"{prefix}iou_distribution.png"
+        fig.savefig(out_dir / name, dpi=110)
+        plt.close(fig)
+        blocks.append(("img", name, "silhouette IoU distribution"))
+    # timing stack
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.3 * len(methods) + 3.5), 3.5))
+    bottom = [0.0] * len(methods)
+    means = [timing_means(rows, m) for m in methods]
+    for s in stages_of(rows):
+        vals = [t[s] or 0.0 for t in means]
+        ax.bar(methods, vals, bottom=bottom, label=s)
+        bottom = [b + v for b, v in zip(bottom, vals, strict=True)]
+    ax.set_ylabel("mean time per trial (s)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.set_title(f"{run.name}: time per stage")
+    fig.tight_layout()
+    name = f"{prefix}timing_stack.png"
+    fig.savefig(out_dir / name, dpi=110)
+    plt.close(fig)
+    blocks.append(("img", name, "time per stage"))
+    return blocks
+
+
+# ----------------------------------------------------------------------------------------- comparison
+
+
+def comparison_blocks(a: Run, b: Run) -> list[Block]:
+    methods = [m for m in methods_of(a.rows, a.manifest) if m in set(methods_of(b.rows, b.manifest))]
+    methods += [m for m in methods_of(b.rows, b.manifest) if m not in methods and m not in methods_of(a.rows)]
+    scen = sorted(set(scenarios_of(a.rows)) | set(scenarios_of(b.rows)), key=_natural)
+    body = []
+    for sc in [*scen, None]:
+        for m in methods:
+            ka, na = success_counts(a.rows, sc, m)
+            kb, nb = success_counts(b.rows, sc, m)
+            delta = (100.0 * kb / nb - 100.0 * ka / na) if na and nb else None
+            label = sc if sc is not None else "**all**"
+            body.append([label, m, _kn(ka, na), _kn(kb, nb), "–" if delta is None else f"{delta:+.0f}"])
+    perf = []
+    for m in methods:
+        ta, tb = timing_means(a.rows, m)["total"], timing_means(b.rows, m)["total"]
+        perf.append([m, _fmt(ta), _fmt(tb)])
+    return [("h2", f"Comparison: A = {a.name}, B = {b.name}"),
+            ("p", "Object success k/n (%) per scenario and method; Δ = B - A in percentage points."),
+            ("table", ["Scenario", "Method", f"A {a.name}", f"B {b.name}", "Δ pp"], body),
+            ("table", ["Method", "mean trial time A (s)", "mean trial time B (s)"], perf),
+            ("p", f"Throughput: A {_fmt(overall_throughput(a), 1)} trials/hour, "
+                  f"B {_fmt(overall_throughput(b), 1)} trials/hour.")]
+
+
+def run_blocks(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
+    return (summary_blocks(run) + table3(run) + reconstruction_table(run) + failure_table(run) + timing_table(run)
+            + throughput_table(run) + [("h2", "Plots")] + make_plots(run, out_dir, prefix))
+
+
+# ----------------------------------------------------------------------------------------- rendering
+
+
+def to_markdown(blocks: list[Block]) -> str:
+    out = []
+    for b in blocks:
+        kind = b[0]
+        if kind in ("h1", "h2", "h3"):
+            out.append("#" * int(kind[1]) + " " + b[1])
+        elif kind == "p":
+            out.append(b[1])
+        elif kind == "table":
+            headers, rows = b[1], b[2]
+            out.append("| " + " | ".join(headers) + " |\n|" + "---|" * len(headers) + "\n"
+                       + "\n".join("| " + " | ".join(str(c).replace("|", "\\|") for c in r) + " |" for r in rows))
+        elif kind == "img":
+            out.append(f"![{b[2]}]({b[1]})")
+    return "\n\n".join(out) + "\n"
+
+
+def _inline(text: str) -> str:
+    import re
+
+    t = html.escape(text)
+    t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+    return re.sub(r"`(.+?)`", r"<code>\1</code>", t)
+
+
+def to_html(blocks: list[Block], title: str) -> str:
+    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+           "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;"
+           "margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:left}th{background:#eee}"
+           "img{max-width:100%}</style></head><body>"]
+    for b in blocks:
+        kind = b[0]
+        if kind in ("h1", "h2", "h3"):
+            out.append(f"<{kind}>{_inline(b[1])}</{kind}>")
+        elif kind == "p":
+            out.append(f"<p>{_inline(b[1])}</p>")
+        elif kind == "table":
+            out.append("<table><tr>" + "".join(f"<th>{_inline(h)}</th>" for h in b[1]) + "</tr>"
+                       + "".join("<tr>" + "".join(f"<td>{_inline(str(c))}</td>" for c in r) + "</tr>" for r in b[2])
+                       + "</table>")
+        elif kind == "img":
+            out.append(f"<p><img src='{html.escape(b[1])}' alt='{html.escape(b[2])}'></p>")
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
+
+
+def write_report(runs: list[str | Path], out_dir: str | Path | None = None) -> dict[str, Any]:
+    """Write ``report.md``, ``report.html`` and PNG plots for one run, or a comparison of two.
+
+    ``out_dir`` defaults to the (first) run folder. Returns the written paths and headline numbers.
+    """
+    if not 1 <= len(runs) <= 2:
+        raise BenchmarkError(f"give one run folder, or two to compare; got {len(runs)}")
+    loaded = [load_run(r) for r in runs]
+    out = Path(out_dir) if out_dir is not None else loaded[0].path
+    out.mkdir(parents=True, exist_ok=True)
+    if len(loaded) == 1:
+        run = loaded[0]
+        blocks: list[Block] = [("h1", f"Benchmark report: {run.name}")] + run_blocks(run, out)
+        title = run.name
+    else:
+        a, b = loaded
+        if a.name == b.name:
+            a.name, b.name = f"A:{a.name}", f"B:{b.name}"
+        title = f"{a.name} vs {b.name}"
+        blocks = [("h1", f"Benchmark comparison: {title}")] + comparison_blocks(a, b)
+        blocks += [("h2", f"Run A: {a.name}")] + _demote(run_blocks(a, out, "a_"))
+        blocks += [("h2", f"Run B: {b.name}")] + _demote(run_blocks(b, out, "b_"))
+    md, page = out / "report.md", out / "report.html"
+    md.write_text(to_markdown(blocks))
+    page.write_text(to_html(blocks, title))
+    images = [str(out / b[1]) for b in blocks if b[0] == "img"]
+    summary: dict[str, Any] = {"report_md": str(md), "report_html": str(page), "plots": images, "runs": []}
+    for run in loaded:
+        summary["runs"].append({
+            "name": run.name, "rows": len(run.rows), "problems": run.problems,
+            "success": {m: dict(zip(("k", "n"), success_counts(run.rows, None, m), strict=True))
+                        for m in methods_of(run.rows, run.manifest)},
+            "trials_per_hour": overall_throughput(run)})
+    return summary
+
+
+def _demote(blocks: list[Block]) -> list[Block]:
+    return [(("h3",) + tuple(b[1:])) if b[0] == "h2" else b for b in blocks]
+
+
+__all__ = ["Run", "load_run", "success_counts", "throughput", "write_report"]

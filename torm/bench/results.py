@@ -1,0 +1,285 @@
+"""A run folder's files, written so that nothing is lost: ``results.jsonl`` and ``manifest.json``.
+
+``results.jsonl``: one JSON object per finished trial and line. Each line is appended with one
+``os.write`` on an ``O_APPEND`` descriptor followed by ``fsync``, so a crash or SIGKILL leaves at
+most a truncated *last* line. Reading drops (and logs) such a line; before new rows are appended the
+runner cuts it off and saves the fragment next to the file (:func:`repair_tail`), never silently.
+A corrupted line in the middle (a disk or editing accident) is reported with its 1-based line number
+and the valid lines are kept (``strict=True`` raises :class:`BenchmarkError` instead).
+
+``manifest.json`` (replaced atomically through a temp file + ``os.replace``): the resolved config, its
+identity hash (:func:`torm.bench.spec.config_hash`), versions, git revision and one entry per
+invocation ("session") with start/end timestamps, which the report turns into throughput.
+
+Non-finite floats (NaN, inf) are written as ``null`` so every line is strict JSON.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import math
+import os
+import platform
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from torm.errors import BenchmarkError
+
+log = logging.getLogger(__name__)
+
+RESULTS_NAME = "results.jsonl"
+MANIFEST_NAME = "manifest.json"
+# Row keys that describe how/when a trial ran rather than what it produced (ignored by comparisons).
+VOLATILE_KEYS: frozenset[str] = frozenset({"run", "timings", "versions"})
+
+
+def utc_now() -> str:
+    """Current UTC time, ISO 8601 with milliseconds (``2026-11-22T04:16:11.123+00:00``)."""
+    return dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def parse_time(text: str) -> dt.datetime:
+    return dt.datetime.fromisoformat(text)
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-ready copy: numpy scalars/arrays to Python, non-finite floats to None, tuples to lists."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, (str, int, bool)) or obj is None:
+        return obj
+    if hasattr(obj, "tolist"):  # numpy array or scalar
+        return _clean(obj.tolist())
+    if isinstance(obj, Path):
+        return str(obj)
+    return str(obj)
+
+
+def encode_row(row: dict[str, Any]) -> bytes:
+    """One results line: compact strict JSON + ``\\n`` (the row must not contain raw newlines; json escapes them)."""
+    return (json.dumps(_clean(row), separators=(",", ":"), allow_nan=False) + "\n").encode()
+
+
+def append_row(path: str | Path, row: dict[str, Any]) -> None:
+    """Append ``row`` as one line with a single ``O_APPEND`` write, then flush it to disk (fsync)."""
+    data = encode_row(row)
+    fd = os.open(str(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        written = os.write(fd, data)
+        while written < len(data):  # regular files do not short-write in practice; be safe anyway
+            written += os.write(fd, data[written:])
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@dataclass
+class ResultsFile:
+    """What :func:`read_results` found.
+
+    Attributes:
+        rows: the valid rows in file order (one per key; see ``duplicates``).
+        bad_lines: 1-based numbers of corrupted lines that were skipped (not counting a truncated last line).
+        truncated: the last line had no newline (an interrupted write) and was dropped.
+        duplicates: keys seen more than once; the first row is kept.
+        problems: human-readable descriptions of everything above.
+    """
+
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    bad_lines: list[int] = field(default_factory=list)
+    truncated: bool = False
+    duplicates: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def keys(self) -> set[str]:
+        return {r["key"] for r in self.rows}
+
+
+def read_results(path: str | Path, strict: bool = False) -> ResultsFile:
+    """Read a ``results.jsonl`` file (missing file: no rows).
+
+    A last line without a newline is an interrupted append: dropped with a warning. Any other line
+    that is not a JSON object with a ``key`` is corrupted: with ``strict`` a BenchmarkError names the
+    file and line number, otherwise the line is skipped, reported in ``problems`` and logged.
+    """
+    p = Path(path)
+    out = ResultsFile()
+    if not p.exists():
+        return out
+    data = p.read_bytes()
+    lines = data.split(b"\n")
+    tail = lines.pop()  # b"" when the file ends with a newline
+    if tail.strip():
+        out.truncated = True
+        msg = (f"{p}: line {len(lines) + 1} is incomplete (no newline; an interrupted write) "
+               f"and was dropped: {tail[:80]!r}")
+        out.problems.append(msg)
+        log.warning("%s", msg)
+    seen: set[str] = set()
+    for i, raw in enumerate(lines, start=1):
+        if not raw.strip():
+            continue
+        try:
+            row = json.loads(raw)
+            if not isinstance(row, dict) or not isinstance(row.get("key"), str):
+                raise ValueError("not a JSON object with a 'key'")
+        except ValueError as exc:
+            msg = f"{p}: line {i} is corrupted ({exc}); it was skipped, the valid lines are kept: {raw[:80]!r}"
+            if strict:
+                raise BenchmarkError(msg) from exc
+            out.bad_lines.append(i)
+            out.problems.append(msg)
+            log.warning("%s", msg)
+            continue
+        if row["key"] in seen:
+            out.duplicates.append(row["key"])
+            out.problems.append(f"{p}: line {i} repeats trial {row['key']!r}; the first row is kept")
+            continue
+        seen.add(row["key"])
+        out.rows.append(row)
+    return out
+
+
+def repair_tail(path: str | Path) -> Path | None:
+    """Cut an incomplete last line off ``path`` before appending; the fragment is saved, not deleted.
+
+    Returns the file the fragment was saved to (``results.jsonl.truncated-<UTC time>``), or None when
+    the file ends cleanly.
+    """
+    p = Path(path)
+    if not p.exists() or p.stat().st_size == 0:
+        return None
+    data = p.read_bytes()
+    if data.endswith(b"\n"):
+        return None
+    cut = data.rfind(b"\n") + 1
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+    saved = p.with_name(f"{p.name}.truncated-{stamp}")
+    saved.write_bytes(data[cut:])
+    with open(p, "r+b") as f:
+        f.truncate(cut)
+        f.flush()
+        os.fsync(f.fileno())
+    log.warning("%s: removed an incomplete last line (interrupted write); its bytes are saved in %s", p, saved)
+    return saved
+
+
+def write_json_atomic(path: str | Path, data: Any) -> None:
+    """Write JSON through ``<path>.tmp`` + fsync + ``os.replace`` (readers see the old or the new file)."""
+    p = Path(path)
+    tmp = p.with_name(p.name + ".tmp")
+    with open(tmp, "w") as f:
+        json.dump(_clean(data), f, indent=2, allow_nan=False)
+        f.write("\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, p)
+
+
+def read_manifest(run_dir: str | Path) -> dict[str, Any] | None:
+    """The run folder's manifest, or None when there is none; BenchmarkError when it is unreadable."""
+    p = Path(run_dir) / MANIFEST_NAME
+    if not p.exists():
+        return None
+    try:
+        data = json.loads(p.read_text())
+    except ValueError as exc:
+        raise BenchmarkError(f"{p} is not valid JSON ({exc}); fix it or start over with --fresh") from exc
+    if not isinstance(data, dict) or "config" not in data:
+        raise BenchmarkError(f"{p} has no 'config'; it is not a torm bench manifest (use --fresh to start over)")
+    return data
+
+
+def git_revision(cwd: str | Path | None = None) -> dict[str, Any]:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the repository holding torm (None without git)."""
+    where = Path(cwd) if cwd is not None else Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=10)
+        if sha.returncode != 0:
+            return {"commit": None, "dirty": None}
+        st = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
+                            capture_output=True, text=True, timeout=10)
+        return {"commit": sha.stdout.strip(), "dirty": bool(st.stdout.strip()) if st.returncode == 0 else None}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+
+
+def package_versions() -> dict[str, str | None]:
+    """Versions of the packages that shape a result, read from metadata (nothing heavy is imported)."""
+    from importlib import metadata
+
+    import torm
+
+    out: dict[str, str | None] = {"torm": torm.__version__, "python": platform.python_version()}
+    for name in ("torch", "mujoco", "numpy", "trimesh", "ray"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def diff_dicts(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[str]:
+    """Lines ``key: old -> new`` for every differing (nested) key."""
+    lines = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k, "<unset>"), new.get(k, "<unset>")
+        if isinstance(a, dict) and isinstance(b, dict):
+            lines += diff_dicts(a, b, f"{prefix}{k}.")
+        elif a != b:
+            lines.append(f"{prefix}{k}: {a!r} -> {b!r}")
+    return lines
+
+
+def move_aside(run_dir: str | Path) -> Path | None:
+    """Move a run folder's results, manifest, logs and recordings into ``run_dir/old-<UTC time>/``.
+
+    Nothing is deleted; returns the folder they went to (None when there was nothing to move).
+    """
+    d = Path(run_dir)
+    names = [n for n in (RESULTS_NAME, MANIFEST_NAME, "logs", "recordings") if (d / n).exists()]
+    names += [p.name for p in d.glob(f"{RESULTS_NAME}.truncated-*")]
+    if not names:
+        return None
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+    dest = d / f"old-{stamp}"
+    n = 1
+    while dest.exists():
+        n += 1
+        dest = d / f"old-{stamp}-{n}"
+    dest.mkdir()
+    for name in names:
+        os.replace(d / name, dest / name)
+    log.warning("--fresh: moved the previous results of %s to %s", d, dest)
+    return dest
+
+
+def comparable(row: dict[str, Any]) -> dict[str, Any]:
+    """``row`` without what legitimately differs between two runs of the same trial.
+
+    Drops :data:`VOLATILE_KEYS` (``run``, ``timings``, ``versions``) at the top level and, at any
+    depth, durations: keys ending in ``_s`` (wall-clock seconds, by the project's naming).
+    """
+
+    def strip(obj: Any) -> Any:
+        if isinstance(obj, dict):
+            return {k: strip(v) for k, v in obj.items() if not k.endswith("_s")}
+        if isinstance(obj, list):
+            return [strip(v) for v in obj]
+        return obj
+
+    return strip({k: v for k, v in row.items() if k not in VOLATILE_KEYS})
+
+
+__all__ = ["MANIFEST_NAME", "RESULTS_NAME", "ResultsFile", "VOLATILE_KEYS", "append_row", "comparable", "diff_dicts",
+           "encode_row", "git_revision", "move_aside", "package_versions", "read_manifest", "read_results",
+           "repair_tail", "utc_now", "write_json_atomic"]

@@ -1,0 +1,110 @@
+"""The child side of an isolated trial: ``python -m torm.bench.worker JOB.json``.
+
+JOB.json holds ``{"spec": TrialSpec dict, "overrides": [...], "trial_fn": "module:function",
+"record_path": str or null, "result_path": str, "parent_pid": int}``. The worker calls
+``trial_fn(spec, overrides, record_path)`` and writes ``{"status": "ok", "record": {...}}`` or, when the
+function raises, ``{"status": "error", "failure": category, "message": ..., "traceback": ...}`` to
+``result_path`` (atomically), then leaves with ``os._exit(0)`` so no library teardown can hang it.
+Anything that kills the process before that (segfault, ``os._exit``, the OOM killer) leaves no result
+file: the parent records ``crashed``. A watchdog thread ends the worker when its parent dies, so a
+SIGKILLed runner leaves no orphans computing for nobody.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("torm.bench.worker")
+
+
+def failure_category(exc: BaseException) -> str:
+    """The recorded category of an exception that escaped a trial function."""
+    names = {c.__name__ for c in type(exc).__mro__}
+    if "PhysicsError" in names or isinstance(exc, FloatingPointError):
+        return "physics_error"
+    if "ReconstructionError" in names:
+        return "reconstruction_failed"
+    if "ConfigError" in names or "UnknownNameError" in names:
+        return "config_error"
+    if isinstance(exc, MemoryError):
+        return "out_of_memory"
+    return "error"
+
+
+def _watch_parent(parent: int, scratch: Path | None = None, interval_s: float = 1.0) -> None:
+    """Exit (after removing the job's scratch folder, which the dead parent cannot) once ``parent`` is gone.
+
+    ``parent`` is the pid the runner wrote into the job, so a parent that died before this thread
+    started is noticed too (``os.getppid()`` would already name the reaper).
+    """
+
+    def loop() -> None:
+        while True:
+            time.sleep(interval_s)
+            if os.getppid() != parent:
+                if scratch is not None:
+                    shutil.rmtree(scratch, ignore_errors=True)
+                os._exit(137)
+
+    threading.Thread(target=loop, name="parent-watchdog", daemon=True).start()
+
+
+def _write_atomic(path: Path, data: dict[str, Any]) -> None:
+    from torm.bench.results import _clean
+
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        json.dump(_clean(data), f, allow_nan=False)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def run_job(job: dict[str, Any]) -> dict[str, Any]:
+    """Run the job's trial function in this process; returns the result dict (never raises)."""
+    from torm.bench.spec import TrialSpec, load_trial_fn
+
+    spec = TrialSpec.from_dict(job["spec"])
+    try:
+        fn = load_trial_fn(job["trial_fn"])
+        record = fn(spec, tuple(job.get("overrides", ())), job.get("record_path"))
+        if not isinstance(record, dict):
+            raise TypeError(f"trial function {job['trial_fn']} returned {type(record).__name__}, not a dict")
+        return {"status": "ok", "record": record}
+    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - every failure becomes a recorded category
+        tb = traceback.format_exc()
+        log.error("trial %s failed: %s", spec.key, tb)
+        return {"status": "error", "failure": failure_category(exc),
+                "message": f"{type(exc).__name__}: {exc}", "traceback": tb[-4000:]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        sys.stderr.write("usage: python -m torm.bench.worker JOB.json\n")
+        return 2
+    job_path = Path(args[0])
+    job = json.loads(job_path.read_text())
+    _watch_parent(int(job.get("parent_pid") or os.getppid()),
+                  job_path.parent if job_path.parent.name.startswith("torm-trial-") else None)
+    logging.basicConfig(level=os.environ.get("TORM_BENCH_LOG_LEVEL", "INFO"), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    result = run_job(job)
+    _write_atomic(Path(job["result_path"]), result)
+    return 0
+
+
+if __name__ == "__main__":
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

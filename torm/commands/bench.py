@@ -1,0 +1,74 @@
+"""``torm bench``: run the closed-loop benchmark grid (scenario x trial x method) into a run folder.
+
+Example::
+
+    torm bench --suite rw --trials 10 --method torm --method depth --workers 2 --out runs/rw-night \\
+        [--scenario rw1 --scenario rw3] [--engine pool|ray] [--ray-address ADDR] [--timeout 1800] \\
+        [--record none|failures|all] [--fresh] [--set reconstruction.grid_res=64]
+
+Re-running the same command resumes: finished trials (by key ``suite/scenario/trial/method``) are
+skipped. A changed config (suite, --set overrides, timeout, trial function, base seed) is refused
+with the differences listed unless ``--fresh``, which moves the old files into ``old-<time>/``.
+Each trial runs in its own process with a time limit; timeouts, crashes and exceptions become
+failure rows. Prints a JSON summary on stdout; then ``torm report OUT`` makes the tables and plots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+from typing import Any
+
+from torm.commands._common import print_json
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from torm.bench.spec import DEFAULT_TRIAL_FN, ENGINES, METHODS, RECORD_MODES
+
+    p = subparsers.add_parser("bench", help="run the closed-loop benchmark grid into a run folder (resumable)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--suite", default="rw", help="scenario suite (rw, syn; default rw)")
+    p.add_argument("--scenario", action="append", default=[], metavar="NAME",
+                   help="only these scenarios of the suite (repeatable or comma-separated; default all)")
+    p.add_argument("--trials", type=int, default=1, help="trials per scenario and method (default 1)")
+    p.add_argument("--method", action="append", default=[], metavar="METHOD",
+                   help=f"perception method(s) {', '.join(METHODS)} (repeatable or comma-separated; default torm)")
+    p.add_argument("--workers", type=int, default=1, help="trials at the same time (default 1)")
+    p.add_argument("--out", required=True, help="run folder (created; resumed when it exists)")
+    p.add_argument("--engine", choices=ENGINES, default="pool", help="pool: local processes (default); ray: Ray tasks")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
+    p.add_argument("--timeout", type=float, default=1800.0, help="seconds per trial before it is killed (default 1800)")
+    p.add_argument("--record", choices=RECORD_MODES, default="none",
+                   help="rerun recordings per trial: none (default), failures (kept for failed trials), all")
+    p.add_argument("--fresh", action="store_true", help="move existing results aside and start over")
+    p.add_argument("--threads", type=int, default=0, help="threads per trial (default: free cores / workers)")
+    p.add_argument("--base-seed", type=int, default=0, help="mixed into every trial seed (default 0)")
+    p.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN,
+                   help=f"module:function run per trial (default {DEFAULT_TRIAL_FN})")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a trial config value, e.g. --set capture.n_views=20 (repeatable)")
+    p.set_defaults(func=run)
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def run(args: argparse.Namespace) -> int:
+    from torm.bench.runner import run_benchmark
+    from torm.bench.spec import BenchConfig, parse_list
+
+    config = BenchConfig(
+        suite=args.suite, scenarios=parse_list(args.scenario), trials=args.trials,
+        methods=parse_list(args.method) or ("torm",), workers=args.workers, engine=args.engine,
+        ray_address=args.ray_address, timeout_s=args.timeout, record=args.record, overrides=tuple(args.overrides),
+        trial_fn=args.trial_fn, base_seed=args.base_seed, threads=args.threads,
+    )
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)  # SIGTERM stops the workers like Ctrl-C
+    try:
+        summary = run_benchmark(config, args.out, fresh=args.fresh, progress=not args.no_progress)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    print_json(summary)
+    return 0
