@@ -44,3 +44,34 @@ def test_bad_trial_configs_name_the_problem():
         cfgmod.from_dict(TrialConfig, {}, ["segmentation.segmenter=sam3"])
     with pytest.raises(ConfigError, match="unknown key"):
         cfgmod.from_dict(TrialConfig, {}, ["reconstruction.grid_rez=3"])
+
+
+@pytest.mark.torm_smoke(scenario="rw2", seed=0, method="depth", min_success=1.0)
+def test_depth_baseline_grasps_the_opaque_cup(torm_smoke_result):
+    assert torm_smoke_result["objects"][0]["name"] == "opaque_cup"
+
+
+def test_depth_baseline_fails_on_glass_because_sensor_depth_sees_through_it(torm_trial):
+    rec = torm_trial("rw1", method="depth")
+    # The D455-like depth passes through the glass: the points lie on the table, far from the cylinder.
+    assert rec["objects"][0]["outcome"] != "success"
+    assert rec["perception"]["chamfer_mm_mean"] > 10.0
+
+
+def test_symmetric_completion_recovers_the_back_of_a_cylinder():
+    import numpy as np
+
+    from torm.perception import complete_by_symmetry
+
+    rng = np.random.default_rng(0)
+    # Front half of a vertical cylinder (r 3 cm, axis at (0.5, 0)) seen from a camera at (0, 0, 0.3).
+    a = rng.uniform(np.pi / 2, 3 * np.pi / 2, 2000)
+    z = rng.uniform(0, 0.1, 2000)
+    pts = np.stack([0.5 + 0.03 * np.cos(a), 0.03 * np.sin(a), z], axis=1)
+    nrm = np.stack([np.cos(a), np.sin(a), 0 * a], axis=1)
+    full, full_n = complete_by_symmetry(pts, nrm, np.array([0.0, 0.0, 0.3]))
+    assert len(full) == 4000
+    assert np.allclose(full[:, :2].mean(axis=0), [0.5, 0.0], atol=2e-3)
+    back = full[2000:]
+    assert np.all(back[:, 0] > 0.5 - 1e-9)  # the mirrored half lies behind the axis
+    assert np.allclose(np.linalg.norm(full_n, axis=1), 1.0)

@@ -69,12 +69,37 @@ def _resample(points: np.ndarray, normals: np.ndarray, n: int, rng: np.random.Ge
     return points[idx], normals[idx]
 
 
+def complete_by_symmetry(points_nx3: np.ndarray, normals_nx3: np.ndarray, eye: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Add the unseen back of a single-view cloud by mirroring it (world frame, m).
+
+    The mirror plane is vertical, perpendicular to the horizontal viewing direction, and placed behind
+    the front-most point by half the object's extent across that direction (a round or boxy object is
+    about as deep as it is wide). This is the usual symmetry prior for grasping from one depth view;
+    without it an antipodal planner finds no opposite contacts on a partial cloud.
+    """
+    d = points_nx3.mean(axis=0) - eye
+    d[2] = 0.0
+    if np.linalg.norm(d) < 1e-9 or len(points_nx3) < 3:
+        return points_nx3, normals_nx3
+    d /= np.linalg.norm(d)
+    side = np.array([-d[1], d[0], 0.0])
+    depth_along = points_nx3 @ d
+    width = float(np.ptp(points_nx3 @ side))
+    plane = float(depth_along.min()) + width / 2
+    mirrored = points_nx3 + np.outer(2 * (plane - depth_along), d)
+    mirrored_n = normals_nx3 - np.outer(2 * (normals_nx3 @ d), d)
+    return np.vstack([points_nx3, mirrored]), np.vstack([normals_nx3, mirrored_n])
+
+
 def depth_point_clouds(capture: Capture, view_index: int, n_points: int, rng: np.random.Generator,
-                       min_pixels: int = 30) -> list[ObjectPointCloud]:
+                       min_pixels: int = 30, symmetric_completion: bool = True) -> list[ObjectPointCloud]:
     """Single-view baseline: back-project view ``view_index``'s sensor depth inside each instance mask.
 
     Returns one cloud per instance id with at least ``min_pixels`` valid depth pixels; ``object_index``
-    is the mask's instance id. Normals from local PCA, oriented towards the camera. Raises
+    is the mask's instance id. Normals from local PCA, oriented towards the camera; with
+    ``symmetric_completion`` the unseen back is added by :func:`complete_by_symmetry`. The masks are the
+    capture's (ground truth in simulation), so the baseline is not penalised for segmentation. Raises
     :class:`TormError` when the view has no sensor depth or no mask.
     """
     view = capture.views[view_index]
@@ -98,6 +123,8 @@ def depth_point_clouds(capture: Capture, view_index: int, n_points: int, rng: np
             continue
         p = pts_cam[sel] @ T[:3, :3].T + T[:3, 3]
         nrm = _estimate_normals(p, eye)
+        if symmetric_completion:
+            p, nrm = complete_by_symmetry(p, nrm, eye)
         p, nrm = _resample(p, nrm, n_points, rng)
         clouds.append(ObjectPointCloud(p, nrm, inst))
     return clouds
