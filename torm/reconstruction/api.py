@@ -122,6 +122,16 @@ class ReconstructionConfig:
 # ----------------------------------------------------------------------------------------------------------
 # Input validation
 # ----------------------------------------------------------------------------------------------------------
+def min_views_for_object(config: ReconstructionConfig, n_views: int) -> int:
+    """Views an instance id must appear in before the object checks apply to it.
+
+    The visual hull carves anything that more than ``vote_tolerance`` of the views call background, so
+    an id seen in fewer views (a spurious segmentation blob) is expected to vanish; with 2-3 views every
+    id is checked.
+    """
+    return min(n_views, max(2, int(np.ceil(config.vote_tolerance * n_views)) + 1))
+
+
 def validate_capture(capture: Capture, bounds_2x3: np.ndarray, config: ReconstructionConfig) -> np.ndarray:
     """Check masks/cameras/objects and return the (V, H, W) int32 instance masks.
 
@@ -172,15 +182,18 @@ def validate_capture(capture: Capture, bounds_2x3: np.ndarray, config: Reconstru
                 m = masks[i] == obj
                 if (m & (foot == 0)).sum() > config.outside_fraction * m.sum():
                     outside_d[obj].append(i)
+    n_min = min_views_for_object(config, V)
     for obj in ids:
         seen, border, outside = seen_d[obj], border_d[obj], outside_d[obj]
+        if len(seen) < n_min:
+            continue  # a blob in a few views only: the vote tolerance carves it away, nothing to check
         limit = config.border_fraction * len(seen)
-        if len(seen) >= 2 and len(border) > limit:
+        if len(border) > limit:
             raise ReconstructionError(
                 f"object {obj} touches the image border in {len(border)} of the {len(seen)} views that see it "
                 f"(e.g. views {border[:5]}): the cameras do not see it whole; move the cameras back or the object in"
             )
-        if len(seen) >= 2 and len(outside) > limit:
+        if len(outside) > limit:
             raise ReconstructionError(
                 f"object {obj} lies mostly outside the reconstruction box {bounds_2x3.tolist()} in {len(outside)} of "
                 f"{len(seen)} views (e.g. views {outside[:5]}); widen ReconstructionConfig.bounds or check the poses"
@@ -189,16 +202,19 @@ def validate_capture(capture: Capture, bounds_2x3: np.ndarray, config: Reconstru
 
 
 def check_object_coverage(inst_vxhxw: np.ndarray, renders: list[np.ndarray], hw: tuple[int, int],
-                          min_coverage: float, bounds_2x3: np.ndarray) -> dict[int, float]:
+                          min_coverage: float, bounds_2x3: np.ndarray, min_views: int = 1) -> dict[int, float]:
     """Median fraction of each object's silhouette pixels covered by the reconstruction (per object id).
 
     An object whose median coverage is below ``min_coverage`` was carved away: it lies outside the
     reconstruction box, or its masks/poses disagree between views. Raises ReconstructionError naming it
-    and its worst views.
+    and its worst views. Ids present in fewer than ``min_views`` views are not checked: the vote
+    tolerance carves such segmentation blobs away on purpose.
     """
     out: dict[int, float] = {}
     h, w = hw
-    for obj in (int(x) for x in np.unique(inst_vxhxw) if x > 0):
+    present = {int(x): int(n) for x, n in zip(*np.unique(
+        np.concatenate([np.unique(m) for m in inst_vxhxw]), return_counts=True), strict=True)}
+    for obj in (o for o, n in present.items() if o > 0 and n >= min_views):
         cov, views = [], []
         for i, r in enumerate(renders):
             m = inst_vxhxw[i] == obj
@@ -332,7 +348,8 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
     ious = [silhouette_iou(r, m) for r, m in zip(renders, sup_masks, strict=True)]
     info["silhouette_iou_mean"] = float(np.mean(ious))
     info["silhouette_iou_min"] = float(np.min(ious))
-    info["object_coverage"] = check_object_coverage(inst, renders, (h, w), config.outside_fraction, bounds)
+    info["object_coverage"] = check_object_coverage(inst, renders, (h, w), config.outside_fraction, bounds,
+                                                    min_views=min_views_for_object(config, len(inst)))
     timings["evaluate"] = time.perf_counter() - t
 
     t = time.perf_counter()
