@@ -334,3 +334,21 @@ def test_tall_cylinder_gets_side_grasps_at_several_heights():
     assert len(side) >= 3 and np.ptp(heights) > 0.03, heights
     # side grasps keep the palm (75 mm tall) above the table: centre at least palm_height / 2 up
     assert heights.min() >= GRIPPER.palm_height / 2 * (1 - 0.2) - 1e-6
+
+
+@pytest.mark.parametrize("use_meshes", [True, False])
+def test_frustum_faces_leaning_inwards_are_grasped_level(use_meshes):
+    # Square frustum (base 60 mm, top 30 mm, 60 mm tall): opposite faces lean 14 deg towards each other.
+    # A ray cast along -n1 meets the opposite face 11 mm lower; the bisector re-cast must find the level
+    # contact so the pair passes the friction cone of mu = 0.5 (26.6 deg).
+    b, t, h = 0.03, 0.015, 0.06
+    corners = [[sx * b, sy * b, 0] for sx in (-1, 1) for sy in (-1, 1)] + [
+        [sx * t, sy * t, h] for sx in (-1, 1) for sy in (-1, 1)]
+    frustum = trimesh.convex.convex_hull(np.array(corners))
+    frustum.apply_translation([0.55, 0.0, 0.0])
+    pcs, tms = clouds([frustum])
+    grasps = plan_grasps(pcs, tms if use_meshes else None, config=GraspPlannerConfig(friction_coef=0.5), rng=0)[0]
+    assert grasps
+    for g in grasps:
+        assert abs(g.T_world_grasp[2, 1]) < 0.1  # a level closing axis between two opposite faces
+        assert g.width <= 0.085

@@ -190,27 +190,51 @@ def sample_contact_pairs(
     t_min = max(1e-4, 0.5 * min_dist)
     has_mesh = np.array([meshes is not None and meshes[k] is not None and not meshes[k].is_empty for k in range(K)])
     t_max = max_dist + search_radius
-    p2, n2, p2f, n2f = (np.full((K, S, 3), np.nan) for _ in range(4))
-    gap = np.zeros((K, S))
-    if not np.all(has_mesh):  # batched point search for every object without a mesh
-        sel = ~has_mesh
-        p2[sel], n2[sel], p2f[sel], n2f[sel], gap[sel] = _opposite_by_points(
-            points_kxnx3[sel], normals_kxnx3[sel], p1[sel], n1[sel], search_radius, t_min, t_max)
-    for k in np.flatnonzero(has_mesh):
-        mesh = meshes[k]
-        # start slightly outside so the entry face is behind the origin; ray along -n1
-        orig = p1[k] + 1e-4 * n1[k]
-        (tf, p2[k], n2[k]), (tl, p2f[k], n2f[k]) = exit_hits(mesh.verts_vx3, mesh.faces_fx3, orig, -n1[k],
-                                                             t_min=1e-4 + t_min, t_max=t_max)
-        hit = np.isfinite(tf)
-        gap[k, hit] = tl[hit] - tf[hit]
-    obj = np.broadcast_to(np.arange(K)[:, None], (K, S)).reshape(-1)
-    p1, n1, p2, n2, p2f, n2f = (a.reshape(-1, 3) for a in (p1, n1, p2, n2, p2f, n2f))
-    if far_contacts:  # the last exit too, where it is a different surface (across a cavity)
-        far = gap.reshape(-1) > 2.0 * search_radius
-        obj = np.concatenate([obj, obj[far]])
-        p1, n1 = np.concatenate([p1, p1[far]]), np.concatenate([n1, n1[far]])
-        p2, n2 = np.concatenate([p2, p2f[far]]), np.concatenate([n2, n2f[far]])
+
+    def cast(back_kxsx3: np.ndarray):
+        """Opposite contacts along p1 - t * back (first and last exits) for every object and sample."""
+        p2, n2, p2f, n2f = (np.full((K, S, 3), np.nan) for _ in range(4))
+        gap = np.zeros((K, S))
+        if not np.all(has_mesh):  # batched point search for every object without a mesh
+            sel = ~has_mesh
+            p2[sel], n2[sel], p2f[sel], n2f[sel], gap[sel] = _opposite_by_points(
+                points_kxnx3[sel], normals_kxnx3[sel], p1[sel], back_kxsx3[sel], search_radius, t_min, t_max)
+        for k in np.flatnonzero(has_mesh):
+            mesh = meshes[k]
+            # start slightly outside so the entry face is behind the origin
+            orig = p1[k] + 1e-4 * n1[k]
+            (tf, p2[k], n2[k]), (tl, p2f[k], n2f[k]) = exit_hits(mesh.verts_vx3, mesh.faces_fx3, orig,
+                                                                 -back_kxsx3[k], t_min=1e-4 + t_min, t_max=t_max)
+            hit = np.isfinite(tf)
+            gap[k, hit] = tl[hit] - tf[hit]
+        return p2, n2, p2f, n2f, gap
+
+    # Pass 1 casts along -n1. Pass 2 re-casts along the bisector closing axis unit(n2 - n1) of pass 1: on
+    # two flat faces that lean towards each other (a frustum, a wedge) the ray along -n1 lands too low on
+    # the opposite face, while the bisector line meets it level with p1.
+    passes = [cast(n1)]
+    y1 = _unit(passes[0][1] - n1)
+    redo = np.all(np.isfinite(y1), axis=-1) & (np.linalg.norm(y1, axis=-1) > 0.5)
+    passes.append(cast(np.where(redo[..., None], -y1, n1)))
+    objs, p1s, n1s, p2s, n2s = [], [], [], [], []
+
+    def flat(a: np.ndarray) -> np.ndarray:
+        return a.reshape(-1, 3)
+
+    obj0 = np.broadcast_to(np.arange(K)[:, None], (K, S)).reshape(-1)
+    for i, (p2, n2, p2f, n2f, gap) in enumerate(passes):
+        take = np.ones(K * S, bool) if i == 0 else redo.reshape(-1)
+        o, a, na, b, nb = obj0[take], flat(p1)[take], flat(n1)[take], flat(p2)[take], flat(n2)[take]
+        if far_contacts:  # the last exit too, where it is a different surface (across a cavity)
+            far = gap.reshape(-1)[take] > 2.0 * search_radius
+            o, a, na = np.concatenate([o, o[far]]), np.concatenate([a, a[far]]), np.concatenate([na, na[far]])
+            b, nb = np.concatenate([b, flat(p2f)[take][far]]), np.concatenate([nb, flat(n2f)[take][far]])
+        objs.append(o)
+        p1s.append(a)
+        n1s.append(na)
+        p2s.append(b)
+        n2s.append(nb)
+    obj, p1, n1, p2, n2 = (np.concatenate(x) for x in (objs, p1s, n1s, p2s, n2s))
     found = np.all(np.isfinite(p2), axis=1) & np.all(np.isfinite(n2), axis=1)
     obj, p1, n1, p2, n2 = obj[found], p1[found], n1[found], p2[found], _unit(n2[found])
     y = _unit(n2 - n1)
