@@ -6,12 +6,11 @@ import os
 from pathlib import Path
 
 import pytest
+import ray
 
-ray = pytest.importorskip("ray")
-
-from torm.bench import BenchConfig, build_grid, run_benchmark  # noqa: E402
-from torm.bench.isolate import TrialJob  # noqa: E402
-from torm.bench.results import comparable, read_results  # noqa: E402
+from torm.bench import BenchConfig, build_grid, run_benchmark
+from torm.bench.isolate import TrialJob
+from torm.bench.results import comparable, read_results
 
 TESTS_DIR = str(Path(__file__).resolve().parent)
 

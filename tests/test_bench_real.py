@@ -6,10 +6,8 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("torm.pipeline")
-
-from torm.bench import BenchConfig, build_grid, run_benchmark  # noqa: E402
-from torm.bench.results import comparable, read_manifest, read_results  # noqa: E402
+from torm.bench import BenchConfig, build_grid, run_benchmark
+from torm.bench.results import comparable, read_manifest, read_results
 
 
 @pytest.mark.slow

@@ -163,7 +163,7 @@ class _RealLike:
         self.ground_truth = None
 
     def capture(self, n_views=None):
-        raise NotImplementedError
+        raise AssertionError("this fake real-robot backend has no camera; the test must not capture")
 
     def close(self) -> None:
         pass

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import onnx
 import pytest
 import trimesh
+from onnx import TensorProto, helper
 
-onnx = pytest.importorskip("onnx")
-from onnx import TensorProto, helper  # noqa: E402
-
-from torm.errors import ModelFileError  # noqa: E402
-from torm.grasp import GraspPlanner  # noqa: E402
-from torm.grasp.learned import OnnxGraspPlanner  # noqa: E402
-from torm.types import ObjectPointCloud  # noqa: E402
+from torm.errors import ModelFileError
+from torm.grasp import GraspPlanner
+from torm.grasp.learned import OnnxGraspPlanner
+from torm.types import ObjectPointCloud
 
 # top-down: x = -z, y = +y, z = x cross y = +x ; from below: x = +z, y = +y, z = -x
 R_TOP = [0, 0, 1, 0, 1, 0, -1, 0, 0]

@@ -16,18 +16,15 @@ import time
 
 import numpy as np
 import pytest
+from websockets.sync.server import serve
 
-pytest.importorskip("websockets")
-
-from websockets.sync.server import serve  # noqa: E402
-
-from sim.robot_config import load_robot_config  # noqa: E402
-from torm.backend.safety import SafetyError  # noqa: E402
-from torm.errors import HardwareError  # noqa: E402
-from torm.hardware.command_log import CommandLog  # noqa: E402
-from torm.hardware.config import GripperSettings, HardwareConfig, RealCaptureSettings  # noqa: E402
-from torm.hardware.rosbridge import InovoArm, MujocoKinematics, ros_duration  # noqa: E402
-from torm.types import CameraView  # noqa: E402
+from sim.robot_config import load_robot_config
+from torm.backend.safety import SafetyError
+from torm.errors import HardwareError
+from torm.hardware.command_log import CommandLog
+from torm.hardware.config import GripperSettings, HardwareConfig, RealCaptureSettings
+from torm.hardware.rosbridge import InovoArm, MujocoKinematics, ros_duration
+from torm.types import CameraView
 
 ACTION = "/robot/joint_trajectory_controller/follow_joint_trajectory"
 RCFG = load_robot_config("inovo_2f85")

@@ -13,14 +13,6 @@ from torm.errors import SceneError
 ALL = list_scenarios("syn") + list_scenarios("rw")
 
 
-def _robot_available() -> bool:
-    try:
-        from sim.robot_config import available_robots
-    except ImportError:
-        return False
-    return "inovo_2f85" in available_robots()
-
-
 @pytest.mark.parametrize("name", ALL)
 def test_every_scenario_builds_and_rests(name):
     w = build_world(name, seed=0, robot=None)
@@ -104,7 +96,6 @@ def test_rejected_layouts_raise_scene_error():
         build_world("rw1", seed=4, robot=None, config=cfg)
 
 
-@pytest.mark.skipif(not _robot_available(), reason="robot inovo_2f85 not available")
 def test_world_with_robot():
     from sim.robot_config import load_robot_config
 

@@ -58,7 +58,6 @@ def test_gt_segment_with_view_checks_and_errors(capture_dir, capsys, tmp_path):
 
 
 def test_grounded_sam_segment_from_a_yaml_config(capture_dir, capsys, tmp_path):
-    pytest.importorskip("onnx")
     from test_seg_grounded_sam import PROMPT, VOCAB, build_gdino, build_sam_decoder, build_sam_encoder
 
     from torm.segmentation.grounded_sam import gdino_resize_hw

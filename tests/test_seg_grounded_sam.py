@@ -12,14 +12,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import onnx
 import pytest
+from onnx import TensorProto, helper, numpy_helper
 
-onnx = pytest.importorskip("onnx")
-from onnx import TensorProto, helper, numpy_helper  # noqa: E402
-
-from torm.errors import CaptureError, ModelFileError, UnknownNameError  # noqa: E402
-from torm.segmentation import make_segmenter  # noqa: E402
-from torm.segmentation.grounded_sam import (  # noqa: E402
+from torm.errors import CaptureError, ModelFileError, UnknownNameError
+from torm.segmentation import make_segmenter
+from torm.segmentation.grounded_sam import (
     IMAGENET_MEAN,
     IMAGENET_STD,
     GroundedSAMConfig,
@@ -27,7 +26,7 @@ from torm.segmentation.grounded_sam import (  # noqa: E402
     sam_resize_hw,
     select_sam_mask,
 )
-from torm.types import CameraView, Capture  # noqa: E402
+from torm.types import CameraView, Capture
 
 VOCAB = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", ".", "?", "clear", "glass", "trans", "##par", "##ent", "object", "##s"]
 PROMPT = "clear glass. transparent object."

@@ -1,0 +1,85 @@
+"""The reconstruction and segmentation benchmark scripts run end to end in --quick mode and write their files.
+
+Each script runs in a subprocess on one tiny scene (12 views at 320x180, grid 32, a few DMTet steps) with its
+capture cache and results in a temporary folder; the test checks the JSON/Markdown files, their keys and that
+the numbers are physically sensible (GT masks reconstruct every object, IoU in [0, 1], input IoU 1 for the
+``none`` preset and < 1 for ``paper``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script: str, tmp: Path) -> None:
+    env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
+    cmd = [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp / "out"),
+           "--cache", str(tmp / "cache"), "--threads", "1"]
+    res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, f"{script} failed:\n{res.stderr[-3000:]}"
+
+
+@pytest.fixture(scope="module")
+def recon_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tmp = tmp_path_factory.mktemp("bench_recon")
+    _run("reconstruction.py", tmp)
+    return tmp / "out"
+
+
+def test_reconstruction_quick_writes_tables(recon_out: Path) -> None:
+    for name in ("reconstruction.json", "reconstruction.md", "reconstruction_curves.png",
+                 "reconstruction_fast.json", "reconstruction_paper.json", "reconstruction_ablation.json"):
+        assert (recon_out / name).is_file(), name
+    doc = json.loads((recon_out / "reconstruction.json").read_text())
+    assert doc["chamfer_points"] >= 30_000
+    fast = doc["parts"]["fast"]
+    ctx = fast["context"]
+    for key in ("versions", "threads", "machine", "date_utc", "contended", "args"):
+        assert key in ctx
+    assert ctx["args"]["quick"] is True and ctx["threads"] == 1
+    (scene,) = fast["scenes"].values()
+    gt = scene["gt"]
+    assert gt["n_found"] == gt["n_present"] == scene["n_objects"] == 3
+    assert 0.8 < gt["silhouette_iou_mean"] <= 1.0 and gt["silhouette_iou_min"] <= gt["silhouette_iou_mean"]
+    assert 0.0 < gt["chamfer_mm"] < 10.0 and 0.5 < gt["volume_iou"] <= 1.0
+    d = gt["depth"]
+    assert 0.0 <= d["mae"] <= d["rmse"] and 0.0 <= d["delta_1.05"] <= d["delta_1.10"] <= d["delta_1.25"] <= 1.0
+    assert 0.5 < d["coverage"] <= 1.0
+    assert scene["corrupted"]["input_iou_mean"] < 1.0
+    assert "corrupted_union" in scene
+    summ = doc["summary"]
+    assert {"fast_gt", "fast_corrupted", "depth", "table1"} <= set(summ)
+    assert set(summ["table1"]) == {"vertex/init/GT", "vertex/init/corrupted", "vertex/envelope/GT",
+                                   "vertex/envelope/corrupted"}
+    runs = doc["parts"]["paper"]["runs"]
+    assert {r["config"]["param"] for r in runs} == {"vertex", "mlp"}
+    for r in runs + doc["parts"]["ablation"]["runs"]:
+        assert r["ms_per_step"] > 0 and 0.0 <= r["silhouette_iou_mean"] <= 1.0
+        assert {"time_to_iou_0.90", "time_to_iou_0.95", "iou_last5_vs_supervision"} <= set(r)
+    md = (recon_out / "reconstruction.md").read_text()
+    for heading in ("Table I", "Table II", "Fast mode", "Timing", "Paper-faithful"):
+        assert heading in md
+
+
+def test_segmentation_quick_writes_tables(tmp_path: Path) -> None:
+    _run("segmentation.py", tmp_path)
+    out = tmp_path / "out"
+    doc = json.loads((out / "segmentation.json").read_text())
+    assert (out / "segmentation.md").read_text().startswith("# Segmentation errors")
+    assert {"context", "scenes", "summary", "chamfer_points"} <= set(doc)
+    summ = doc["summary"]
+    assert {"none", "paper", "none (union)", "paper (union)"} <= set(summ)
+    assert summ["none"]["input_iou_mean"] == pytest.approx(1.0)
+    assert summ["paper"]["input_iou_mean"] < 0.95
+    assert summ["none"]["failed"] == 0 and summ["none"]["objects_found"] == "3/3"
+    (scene,) = doc["scenes"].values()
+    for r in scene["presets"].values():
+        assert {"input_iou_mean", "input_iou_min", "n_present", "union"} <= set(r)
