@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
-import trimesh
 
 from torm.backend.protocol import ArmState, GripperState
 from torm.backend.safety import SafeArm, SafetyLimits
@@ -338,17 +337,8 @@ class SimGroundTruth:
         return float(self._world.table_height)
 
     def object_meshes(self) -> dict[int, TriMesh]:
-        """Instance id -> the object's outer surface in the world frame at its current pose (m).
-
-        Sealed inner cavities (e.g. the closed toothpick box's inside, a shell with negative volume) are
-        dropped: no camera or finger can reach them. An open cup's inside is part of its outer surface.
-        """
-        out: dict[int, TriMesh] = {}
-        for o, mesh in zip(self._world.objects, self._world.object_meshes_world(), strict=True):
-            parts = [p for p in mesh.split(only_watertight=False) if p.volume > 0] if mesh.body_count > 1 else [mesh]
-            outer = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
-            out[o.instance_id] = TriMesh(np.asarray(outer.vertices), np.asarray(outer.faces))
-        return out
+        """Instance id -> the object's outer surface in the world frame at its current pose (m)."""
+        return self._world.object_outer_surfaces()
 
 
 class SimBackend:

@@ -33,6 +33,7 @@ from sim.scenes.objects import ObjectAsset, get_object
 from sim.scenes.placement import Placement, PlacementConfig, place_objects
 from sim.scenes.scenario import Scenario, get_scenario
 from torm.errors import ConfigError, SceneError
+from torm.types import TriMesh
 
 if TYPE_CHECKING:
     from sim.robot_config import RobotConfig
@@ -163,6 +164,19 @@ class World:
     def object_meshes_world(self) -> list[trimesh.Trimesh]:
         """Each object's mesh in the world frame at its current pose (instance order), e.g. for GT metrics."""
         return [o.mesh.copy().apply_transform(self.object_pose(o.instance_id)) for o in self.objects]
+
+    def object_outer_surfaces(self) -> dict[int, TriMesh]:
+        """Instance id -> the object's outer surface in the world frame at its current pose (m).
+
+        Sealed inner cavities (the closed toothpick box's inside: a shell with negative volume) are dropped,
+        since no camera or finger can reach them; an open cup's inside is part of its outer surface.
+        """
+        out: dict[int, TriMesh] = {}
+        for o, mesh in zip(self.objects, self.object_meshes_world(), strict=True):
+            parts = [p for p in mesh.split(only_watertight=False) if p.volume > 0] if mesh.body_count > 1 else [mesh]
+            outer = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
+            out[o.instance_id] = TriMesh(np.asarray(outer.vertices), np.asarray(outer.faces))
+        return out
 
     def reset(self) -> None:
         """Restore the settled state (qpos, zero velocities, robot controls at home) and run mj_forward."""

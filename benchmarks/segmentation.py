@@ -1,0 +1,204 @@
+"""Segmentation-error benchmark: how mask errors propagate into the fast-mode reconstruction.
+
+For every noisy-segmenter preset (``none``, ``mild``, ``moderate``, ``severe``, ``paper``) and scene, the GT
+masks of the cached capture are corrupted (seed = scene seed), their quality against GT is measured
+(union-silhouette IoU mean/min per view, object IoU, missed/spurious fractions) and the default fast-mode
+``reconstruct()`` is run on them; the reconstruction is scored against the ground truth (objects found vs
+present, silhouette IoU vs GT masks over all views at the capture resolution, dense Chamfer mm, volume IoU).
+This gives the GT-vs-segmented row of the paper's Table I a measured counterpart for the fast mode.
+
+Writes ``<out>/segmentation.json`` (after every scene, so an interrupted run keeps what it measured) and
+``<out>/segmentation.md``.
+
+Run: ``python benchmarks/segmentation.py [--quick] [--scenarios rw3 rw4 rw7 syn5] [--presets ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common as bc  # noqa: E402
+import numpy as np  # noqa: E402
+
+from torm.errors import ReconstructionError  # noqa: E402
+from torm.reconstruction import ReconstructionConfig, reconstruct  # noqa: E402
+from torm.segmentation import make_segmenter  # noqa: E402
+
+log = logging.getLogger("bench.segmentation")
+
+PRESETS = ("none", "mild", "moderate", "severe", "paper")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--quick", action="store_true", help="tiny run for tests: 1 scene, 12 views 320x180, grid 32")
+    p.add_argument("--out", type=Path, default=bc.RESULTS, help="result folder")
+    p.add_argument("--cache", type=Path, default=bc.CAPTURE_CACHE, help="capture cache folder")
+    p.add_argument("--scenarios", nargs="+", default=None)
+    p.add_argument("--seeds", nargs="+", type=int, default=[0])
+    p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS)
+    p.add_argument("--views", type=int, default=50)
+    p.add_argument("--scale", type=float, default=0.5, help="image scale of 1280x720 (0.5 -> 640x360)")
+    p.add_argument("--grid", type=int, default=48)
+    p.add_argument("--refine-iters", type=int, default=None, help="fast-mode refinement steps (default: config)")
+    p.add_argument("--threads", type=int, default=bc.THREADS)
+    p.add_argument("--no-union", dest="union", action="store_false",
+                   help="skip the second reconstruction from the same masks with the instance ids merged")
+    a = p.parse_args(argv)
+    if a.quick:
+        a.scenarios = a.scenarios or ["rw4"]
+        a.presets = ["none", "paper"] if a.presets == list(PRESETS) else a.presets
+        a.views, a.scale, a.grid = 12, 0.25, 32
+        a.refine_iters = 10 if a.refine_iters is None else a.refine_iters
+    a.scenarios = a.scenarios or ["rw3", "rw4", "rw7", "syn5"]
+    return a
+
+
+def run_one(scene: bc.Scene, preset: str, a: argparse.Namespace) -> dict[str, Any]:
+    """Corrupt the GT masks with ``preset``, reconstruct (fast mode) and score against the ground truth."""
+    seg = make_segmenter("noisy", {"preset": preset, "seed": scene.seed}).segment(scene.capture)
+    q = seg.info["quality"]
+    ev = seg.info.get("events", [])
+    out: dict[str, Any] = {
+        "input_iou_mean": q["silhouette_iou_mean"], "input_iou_min": q["silhouette_iou_min"],
+        "input_object_iou": q["object_iou_mean"], "input_missed_fraction": q["missed_fraction"],
+        "input_spurious_fraction": q["spurious_fraction"], "n_events": len(ev) if isinstance(ev, list) else None,
+    }
+    kw: dict[str, Any] = {"grid_res": a.grid}
+    if a.refine_iters is not None:
+        kw["refine_iters"] = a.refine_iters
+    cfg = ReconstructionConfig(mode="fast", **kw)
+    out["config"] = {"grid_res": cfg.grid_res, "refine_iters": cfg.refine_iters, "vote_tolerance": cfg.vote_tolerance}
+    t = time.perf_counter()
+    try:
+        rec = reconstruct(seg.apply(scene.capture), cfg)
+        out["time_s"] = time.perf_counter() - t
+        out.update(bc.evaluate_meshes(list(rec.object_meshes), scene))
+    except ReconstructionError as exc:
+        log.warning("%s/%s: reconstruction failed: %s", scene.name, preset, exc)
+        out.update({"error": str(exc), "n_present": len(scene.gt_meshes), "n_found": 0})
+    if a.union:
+        # the same silhouettes with every id merged into 1: the geometry only uses the union; the ids only feed
+        # reconstruct()'s per-object validation, which spurious blob ids can fail
+        u: dict[str, Any] = {}
+        t = time.perf_counter()
+        try:
+            rec = reconstruct(scene.capture.with_masks((seg.masks_vxhxw > 0).astype(np.int32)), cfg)
+            u["time_s"] = time.perf_counter() - t
+            u.update(bc.evaluate_meshes(list(rec.object_meshes), scene))
+        except ReconstructionError as exc:
+            u.update({"error": str(exc), "n_present": len(scene.gt_meshes), "n_found": 0})
+        out["union"] = u
+    return out
+
+
+def build_report(doc: dict[str, Any], out: Path) -> None:
+    rows, srows = [], []
+    by_preset: dict[str, list[dict[str, Any]]] = {}
+    for key, sc in doc["scenes"].items():
+        for preset, r in sc["presets"].items():
+            by_preset.setdefault(preset, []).append(r)
+            found = f"{r.get('n_found', 0)}/{r['n_present']}" + (f" +{r['n_spurious']}" if r.get("n_spurious") else "")
+            rows.append([key, preset, "ids", r["input_iou_mean"], r["input_iou_min"], r["input_object_iou"], found,
+                         r.get("silhouette_iou_mean"), r.get("silhouette_iou_min"), r.get("chamfer_mm"),
+                         r.get("volume_iou"), r.get("time_s"), r.get("error", "")[:90]])
+            if "union" in r:
+                u = r["union"]
+                inp = {k: v for k, v in r.items() if k.startswith("input_")}
+                by_preset.setdefault(preset + " (union)", []).append({**inp, **u})
+                found = f"{u.get('n_found', 0)}/{u['n_present']}" + (f" +{u['n_spurious']}" if u.get("n_spurious")
+                                                                      else "")
+                rows.append([key, preset, "union", r["input_iou_mean"], r["input_iou_min"], r["input_object_iou"],
+                             found, u.get("silhouette_iou_mean"), u.get("silhouette_iou_min"), u.get("chamfer_mm"),
+                             u.get("volume_iou"), u.get("time_s"), u.get("error", "")[:90]])
+
+    def mean(rs: list[dict[str, Any]], k: str) -> float:
+        v = [r[k] for r in rs if r.get(k) is not None and np.isfinite(r[k])]
+        return float(np.mean(v)) if v else float("nan")
+
+    summary = {}
+    for preset in [p for q in PRESETS for p in (q, q + " (union)")]:
+        rs = by_preset.get(preset)
+        if not rs:
+            continue
+        ok = [r for r in rs if "error" not in r]
+        s = {"scenes": len(rs), "failed": len(rs) - len(ok),
+             "objects_found": f"{sum(r.get('n_found', 0) for r in rs)}/{sum(r['n_present'] for r in rs)}",
+             "spurious": sum(r.get("n_spurious", 0) for r in ok),
+             **{k: mean(rs, k) for k in ("input_iou_mean", "input_object_iou")},
+             "input_iou_min": float(min(r["input_iou_min"] for r in rs)),
+             **{k: mean(ok, k) for k in ("silhouette_iou_mean", "chamfer_mm", "volume_iou", "time_s")}}
+        summary[preset] = s
+        srows.append([preset, s["scenes"], s["input_iou_mean"], s["input_iou_min"], s["input_object_iou"],
+                      s["objects_found"], s["spurious"], s["failed"], s["silhouette_iou_mean"], s["chamfer_mm"],
+                      s["volume_iou"], s["time_s"]])
+    # which instance id made reconstruct() fail: a GT object (1..n_objects) or a spurious one the segmenter added
+    import re
+
+    fails = [(sc["n_objects"], re.search(r"object (\d+)", r.get("error", ""))) for sc in doc["scenes"].values()
+             for r in sc["presets"].values() if "error" in r]
+    n_spur = sum(1 for n, m in fails if m and int(m.group(1)) > n)
+    summary["failures_with_instance_ids"] = {"total": len(fails), "caused_by_a_spurious_instance_id": n_spur}
+    doc["summary"] = summary
+    bc.write_json(out / "segmentation.json", doc)
+    a = doc["context"]["args"]
+    md = ["# Segmentation errors -> reconstruction (fast mode)\n",
+          f"Generated by `benchmarks/segmentation.py`. Scenes {', '.join(doc['scenes'])}; {a['views']} views at scale "
+          f"{a['scale']} of 1280x720; noisy-segmenter presets {', '.join(a['presets'])} (seed = scene seed); default "
+          f"fast mode (grid {a['grid']}, refinement steps "
+          f"{a['refine_iters'] if a['refine_iters'] is not None else 'default (100)'}). Input IoU: corrupted vs GT "
+          "union silhouettes per view (mean over views; min = worst view); object IoU: best-match IoU per (view, "
+          "GT object). Reconstruction metrics are against the ground truth: silhouette IoU vs GT masks over all "
+          f"views at the capture resolution, Chamfer from {bc.CHAMFER_POINTS} dense samples per side, volume IoU "
+          "of the union of objects vs the union of GT shells. A failed reconstruction (ReconstructionError) counts "
+          "0 objects found and is left out of the IoU/Chamfer/volume means. Each preset is reconstructed twice: "
+          "with the masks' instance ids as the segmenter labels them (spurious blobs get their own id) and as "
+          "'(union)' with every id merged into 1; `reconstruct()` builds the geometry from the union either way, the "
+          "ids only feed its per-object input validation and coverage check.\n",
+          "**Run context**\n", bc.context_md(doc["context"]),
+          "## Per preset (mean over scenes)\n",
+          bc.md_table(["preset", "scenes", "input IoU mean", "input IoU min", "input object IoU", "objects found",
+                       "spurious", "failed", "IoU vs GT", "Chamfer mm", "vol IoU", "time s"], srows),
+          f"\nReconstructions that failed with the segmenter's instance ids: {len(fails)}, of which {n_spur} named an "
+          "instance id that is not a GT object (a spurious blob the segmenter added, seen in a few views), which "
+          "`reconstruct()`'s per-object validation/coverage check rejects although the visual hull carves it away.\n",
+          "\nPaper Table I (DMTet-Multi, envelope loss, 8000 iterations): IoU 0.876 with GT silhouettes, 0.808 with "
+          "segmented ones (IoU against the supervision masks). The `none` row is the GT-mask reference here.\n",
+          "## Per scene\n",
+          bc.md_table(["scene", "preset", "mask ids", "input IoU mean", "input IoU min", "input object IoU",
+                       "found/present", "IoU vs GT mean", "IoU vs GT min", "Chamfer mm", "vol IoU", "time s",
+                       "error"], rows)]
+    (out / "segmentation.md").write_text("\n".join(md))
+    log.info("wrote %s", out / "segmentation.md")
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = parse_args(argv)
+    a.out.mkdir(parents=True, exist_ok=True)
+    bc.setup(a.threads)
+    args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
+    doc: dict[str, Any] = {"context": bc.context(args), "chamfer_points": bc.CHAMFER_POINTS, "scenes": {}}
+    for seed in a.seeds:
+        for name in a.scenarios:
+            scene = bc.get_scene(name, seed, a.views, a.scale, a.cache)
+            key = f"{name}_s{seed}"
+            doc["scenes"][key] = {"scenario": name, "seed": seed, "n_objects": len(scene.gt_meshes), "presets": {}}
+            for preset in a.presets:
+                r = run_one(scene, preset, a)
+                doc["scenes"][key]["presets"][preset] = r
+                log.info("%s %s: input IoU %.3f -> found %s/%s, IoU %s, Chamfer %s mm", key, preset,
+                         r["input_iou_mean"], r.get("n_found"), r["n_present"], bc.fmt(r.get("silhouette_iou_mean")),
+                         bc.fmt(r.get("chamfer_mm"), 2))
+                build_report(doc, a.out)
+    build_report(doc, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
