@@ -40,22 +40,12 @@ from torm.bench.report import (  # noqa: E402
     success_counts,
     timing_means,
 )
-from torm.bench.results import package_versions  # noqa: E402
+from torm.bench.results import cpu_model, package_versions  # noqa: E402
 from torm.bench.spec import DEFAULT_TRIAL_FN, parse_list  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 RUN_DIR = ROOT / "runs" / "bench_throughput"
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def _r(v: float | None, digits: int = 3) -> float | None:
@@ -95,7 +85,7 @@ def summarise(run_dir: Path, config: BenchConfig, wall_s: float, load_before: tu
         "trials_per_hour": _r(tph, 1),
         "per_method": per_method,
         "failure_categories": failures,
-        "machine": {"cpu": _cpu_model(), "cores": cores, "platform": platform.platform(),
+        "machine": {"cpu": cpu_model(), "cores": cores, "platform": platform.platform(),
                     "loadavg_before": [round(x, 2) for x in load_before],
                     "loadavg_after": [round(x, 2) for x in load_after]},
         "contended": bool(load_before[0] > 0.5 * cores),

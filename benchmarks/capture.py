@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 import torm  # noqa: E402
 from sim.camera_rig import CHANNELS, CameraRigConfig, SimCameraRig  # noqa: E402
 from sim.occlusion import occlusion_ratio  # noqa: E402
+from torm.bench.results import cpu_model  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RESOLUTIONS = ((640, 360), (1280, 720))
@@ -71,16 +72,6 @@ def _gl_info(rig: SimCameraRig) -> dict[str, str]:
                                                             ("gl_version", GL.GL_VERSION))}
     except Exception as exc:  # informational only
         return {"gl_info_error": str(exc)}
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def bench_resolution(rig_args: dict, width: int, height: int, views: int, repeats: int) -> dict:
@@ -178,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         "resolutions": rows,
         "threads": {"python_render_threads": 1, "LP_NUM_THREADS": os.environ.get("LP_NUM_THREADS"),
                     "available_cores": cores},
-        "machine": {"cpu": _cpu_model(), "cores": cores, "platform": platform.platform(),
+        "machine": {"cpu": cpu_model(), "cores": cores, "platform": platform.platform(),
                     "loadavg_before": [round(x, 2) for x in load_before],
                     "loadavg_after": [round(x, 2) for x in load_after],
                     "MUJOCO_GL": os.environ.get("MUJOCO_GL")},

@@ -213,6 +213,17 @@ def git_revision(cwd: str | Path | None = None) -> dict[str, Any]:
         return {"commit": None, "dirty": None}
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux /proc/cpuinfo), for the machine context of result files."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
 def package_versions() -> dict[str, str | None]:
     """Versions of the packages that shape a result, read from metadata (nothing heavy is imported)."""
     from importlib import metadata
