@@ -75,3 +75,9 @@ def test_symmetric_completion_recovers_the_back_of_a_cylinder():
     back = full[2000:]
     assert np.all(back[:, 0] > 0.5 - 1e-9)  # the mirrored half lies behind the axis
     assert np.allclose(np.linalg.norm(full_n, axis=1), 1.0)
+
+
+def test_re_perceive_captures_again_before_each_later_pick(torm_trial):
+    rec = torm_trial("rw3", method="oracle", overrides=["re_perceive=true"])
+    assert rec["n_perceptions"] == rec["n_objects"] == 2
+    assert rec["success_rate"] == 1.0

@@ -258,6 +258,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         record["objects"] = [_obj(i, names, Outcome.NOT_RECONSTRUCTED, str(exc)) for i in gt_ids]
         return
     record["perception"] = _perception_summary(per, backend, config)
+    record["n_perceptions"] = 1
     if hasattr(backend, "occlusion_ratio") and per.info["capture"].has_masks:
         t = time.perf_counter()
         record["occ"] = backend.occlusion_ratio(per.info["capture"])
@@ -282,6 +283,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             continue
         if config.re_perceive and n_pick > 0:
             per = perceive(config, backend, rng, timings)
+            record["n_perceptions"] += 1
             grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
             by_label.update({c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)})
         cloud, cands = by_label[label]

@@ -48,7 +48,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a trial config value, e.g. --set capture.n_views=20 (repeatable)")
+    p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
+    p.add_argument("--robot-config", default=None, help="robot folder name or robot YAML (default inovo_2f85)")
+    p.add_argument("--hardware-config", default=None, metavar="FILE", help="hardware YAML for --backend real")
+    p.add_argument("--arm-robot", action="store_true", help="allow the real arm to move (--backend real)")
     p.set_defaults(func=run)
+
+
+def trial_overrides(args: argparse.Namespace) -> tuple[str, ...]:
+    """--set overrides plus the backend/robot flags, as ``key=value`` strings (the flags come first)."""
+    flags = {"backend": args.backend, "robot": args.robot_config, "hardware_config": args.hardware_config}
+    out = [f"{k}={v}" for k, v in flags.items() if v is not None]
+    if args.arm_robot:
+        out.append("arm_robot=true")
+    return (*out, *args.overrides)
 
 
 def _on_sigterm(signum: int, frame: Any) -> None:
@@ -62,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     config = BenchConfig(
         suite=args.suite, scenarios=parse_list(args.scenario), trials=args.trials,
         methods=parse_list(args.method) or ("torm",), workers=args.workers, engine=args.engine,
-        ray_address=args.ray_address, timeout_s=args.timeout, record=args.record, overrides=tuple(args.overrides),
+        ray_address=args.ray_address, timeout_s=args.timeout, record=args.record, overrides=trial_overrides(args),
         trial_fn=args.trial_fn, base_seed=args.base_seed, threads=args.threads,
     )
     previous = signal.signal(signal.SIGTERM, _on_sigterm)  # SIGTERM stops the workers like Ctrl-C
