@@ -347,29 +347,22 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
     def obj() -> np.ndarray:
         return backend.ground_truth.object_poses()[k][:3, 3].copy()
 
+    # Each carrying phase is judged right after it: from the true pose in simulation, from the gripper's object
+    # detection on the real robot.
+    stages = (("lift", "lift_end", Outcome.SLIPPED, "did not stay in the hand during the lift"),
+              ("translate", "translate_end", Outcome.DROPPED, "was dropped during the translation"))
     try:
-        transport("lift", trace.lift if trace is not None else None)
-        if trace is not None:
-            trace.lift_end = obj()
-            j = judge_pick(trace, crit)
-            if j.outcome is Outcome.SLIPPED:
-                return _abort(backend, run, res, cfg, j, "the object did not stay in the hand during the lift",
-                              disturbance, k)
-        elif not grip.state().object_detected:
-            res.outcome, res.message = Outcome.SLIPPED, "the gripper lost the object during the lift"
-            run.phase("release", lambda: grip.move(open_w, cfg.grip_speed, cfg.grip_force))
-            return
-        transport("translate", trace.translate if trace is not None else None)
-        if trace is not None:
-            trace.translate_end = obj()
-            j = judge_pick(trace, crit)
-            if j.outcome is Outcome.DROPPED:
-                return _abort(backend, run, res, cfg, j, "the object was dropped during the translation",
-                              disturbance, k)
-        elif not grip.state().object_detected:
-            res.outcome, res.message = Outcome.DROPPED, "the gripper lost the object during the translation"
-            run.phase("release", lambda: grip.move(open_w, cfg.grip_speed, cfg.grip_force))
-            return
+        for phase, end_field, failure, why in stages:
+            transport(phase, getattr(trace, phase) if trace is not None else None)
+            if trace is not None:
+                setattr(trace, end_field, obj())
+                j = judge_pick(trace, crit)
+                if j.outcome is failure:
+                    return _abort(backend, run, res, cfg, j, f"the object {why}", disturbance, k)
+            elif not grip.state().object_detected:
+                res.outcome, res.message = failure, f"the gripper reports no object: it {why}"
+                run.phase("release", lambda: grip.move(open_w, cfg.grip_speed, cfg.grip_force))
+                return
     finally:
         remove = getattr(backend, "remove_step_callback", None)
         if sampler is not None and callable(remove):
