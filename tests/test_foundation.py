@@ -105,3 +105,12 @@ def test_grasp_graspnet_roundtrip():
     assert row.shape == (17,) and row[0] == 0.8 and row[16] == 3
     g2 = Grasp.from_graspnet(row)
     assert np.allclose(g2.T_world_grasp, T) and g2.width == 0.05 and g2.object_id == 3
+
+
+def test_with_options_layers_keywords_over_a_config():
+    base = config.from_dict(_Outer, {"inner": {"res": 48}})
+    cfg = config.with_options(_Outer, base, {"seed": 3})
+    assert cfg.inner.res == 48 and cfg.seed == 3
+    assert config.with_options(_Outer, {"names": ["z"]}, {}).names == ("z",)
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) \['sede'\]"):
+        config.with_options(_Outer, None, {"sede": 3})

@@ -98,6 +98,17 @@ def load(cls: type[T], path: str | Path | None = None, overrides: Iterable[str] 
     return from_dict(cls, data, overrides, where=where)
 
 
+def with_options(cls: type[T], config: T | Mapping[str, Any] | None, options: Mapping[str, Any],
+                 where: str = "") -> T:
+    """``config`` (an instance of ``cls``, a mapping or None for the defaults) with keyword ``options`` on top.
+
+    Used by constructors that take a config plus keyword overrides (e.g. ``gymnasium.make(id, cameras=())``);
+    unknown keys raise ConfigError listing the valid ones.
+    """
+    base = to_dict(config) if isinstance(config, cls) else dict(config or {})
+    return from_dict(cls, {**base, **options}, where=where or cls.__name__)
+
+
 def to_dict(obj: Any) -> Any:
     """A dataclass config as plain JSON/YAML-friendly data (tuples become lists)."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):

@@ -40,6 +40,7 @@ import numpy as np
 from gymnasium import spaces
 from scipy.spatial import cKDTree
 
+from torm.config import with_options
 from torm.env.errors import InvalidActionError
 from torm.errors import ConfigError, ReconstructionError, UnknownNameError
 from torm.execution.pick import PickConfig
@@ -142,15 +143,6 @@ def object_summary(points_nx3: np.ndarray, n_candidates: int, top_k: int) -> np.
     return np.concatenate([c, size, std, [n_candidates / top_k]]).astype(np.float32)
 
 
-def _config_from(config: GraspSelectEnvConfig | dict | None, kwargs: dict[str, Any]) -> GraspSelectEnvConfig:
-    base = config if isinstance(config, GraspSelectEnvConfig) else GraspSelectEnvConfig(**(config or {}))
-    valid = {f.name for f in dataclasses.fields(GraspSelectEnvConfig)}
-    unknown = [k for k in kwargs if k not in valid]
-    if unknown:
-        raise UnknownNameError("TormGraspSelect-v0 option", unknown[0], valid)
-    return dataclasses.replace(base, **kwargs) if kwargs else base
-
-
 class TormGraspSelectEnv(gym.Env):
     """High-level grasp-selection env (see the module docstring)."""
 
@@ -160,7 +152,7 @@ class TormGraspSelectEnv(gym.Env):
                  **options: Any) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UnknownNameError("render_mode", render_mode, self.metadata["render_modes"])
-        self.config = cfg = _config_from(config, options)
+        self.config = cfg = with_options(GraspSelectEnvConfig, config, options)
         self.render_mode = render_mode
         K, M = cfg.top_k, cfg.object_points
         self.action_space = spaces.Discrete(K)

@@ -54,6 +54,7 @@ import numpy as np
 from gymnasium import spaces
 from scipy.spatial.transform import Rotation
 
+from torm.config import with_options
 from torm.env.cameras import CAMERA_NAMES, MAX_DEPTH, EnvCameras, WristMount
 from torm.env.errors import InvalidActionError
 from torm.errors import ConfigError, UnknownNameError
@@ -159,18 +160,6 @@ class PickEnvConfig:
             raise ConfigError(f"PickEnvConfig.layout_seed must be >= 0 or None, got {self.layout_seed}")
 
 
-def _config_from(config: PickEnvConfig | dict | None, kwargs: dict[str, Any]) -> PickEnvConfig:
-    """A config from a PickEnvConfig / dict plus keyword overrides (``gymnasium.make(..., cameras=())``)."""
-    from dataclasses import fields, replace
-
-    base = config if isinstance(config, PickEnvConfig) else PickEnvConfig(**(config or {}))
-    valid = {f.name for f in fields(PickEnvConfig)}
-    unknown = [k for k in kwargs if k not in valid]
-    if unknown:
-        raise UnknownNameError("TormPick-v0 option", unknown[0], valid)
-    return replace(base, **kwargs) if kwargs else base
-
-
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=np.float64).ravel())
@@ -186,7 +175,7 @@ class TormPickEnv(gym.Env):
                  **options: Any) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UnknownNameError("render_mode", render_mode, self.metadata["render_modes"])
-        self.config = cfg = _config_from(config, options)
+        self.config = cfg = with_options(PickEnvConfig, config, options)
         self.render_mode = render_mode
         from sim.robot_config import load_robot_config
 
