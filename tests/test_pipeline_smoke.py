@@ -81,3 +81,14 @@ def test_re_perceive_captures_again_before_each_later_pick(torm_trial):
     rec = torm_trial("rw3", method="oracle", overrides=["re_perceive=true"])
     assert rec["n_perceptions"] == rec["n_objects"] == 2
     assert rec["success_rate"] == 1.0
+
+
+def test_trial_writes_a_rerun_recording(tmp_path):
+    from torm import config as cfgmod
+    from torm.pipeline import TrialConfig, run_trial
+    from torm.testing.plugin import SMOKE_OVERRIDES
+
+    cfg = cfgmod.from_dict(TrialConfig, {}, [*SMOKE_OVERRIDES, "scenario=rw1", "method=oracle"])
+    rec = run_trial(cfg, record=str(tmp_path / "trial.rrd"))
+    assert rec["success_rate"] == 1.0
+    assert (tmp_path / "trial.rrd").stat().st_size > 10_000  # capture, meshes, grasps and the motion

@@ -239,7 +239,7 @@ def _attach_recorder(recorder: Any, backend: Any) -> None:
     gt = backend.ground_truth
 
     def on_step(t: float) -> None:
-        if t >= recorder._next:
+        if recorder.due(t):
             poses = {k: T[:3, 3] for k, T in gt.object_poses().items()}
             recorder.step(t, backend.arm.state().T_world_tcp, poses)
 
@@ -282,10 +282,14 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             done[label] = _obj(label, names, Outcome.PHYSICS, "trial aborted after a physics error")
             continue
         if config.re_perceive and n_pick > 0:
-            per = perceive(config, backend, rng, timings)
-            record["n_perceptions"] += 1
-            grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
-            by_label.update({c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)})
+            try:
+                per = perceive(config, backend, rng, timings)
+            except ReconstructionError as exc:  # keep planning on the previous reconstruction
+                log.warning("re-perception before pick %d failed (%s); using the previous one", n_pick, exc)
+            else:
+                record["n_perceptions"] += 1
+                grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
+                by_label.update({c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)})
         cloud, cands = by_label[label]
         if not cands:
             done[label] = _obj(label, names, Outcome.NO_GRASP, "no collision-free grasp within the stroke")

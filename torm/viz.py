@@ -155,9 +155,13 @@ class TrialRecorder:
             log_grasps(self.rec, f"world/grasps/object_{k}", gs[:1])
             log_grasps(self.rec, f"world/grasps/object_{k}_alternatives", gs[1:], color=(120, 120, 120))
 
+    def due(self, t: float) -> bool:
+        """Whether a motion sample at simulated time ``t`` (s) would be logged (rate limit ``period``)."""
+        return t >= self._next
+
     def step(self, t: float, T_world_tcp: np.ndarray, object_positions: dict[int, np.ndarray]) -> None:
         """Log the TCP and object positions at simulated time ``t`` (s), rate-limited to ``period``."""
-        if t < self._next:
+        if not self.due(t):
             return
         self._next = t + self.period
         self.rec.set_time("sim_time", duration=float(t))
