@@ -10,7 +10,8 @@ Writes ``benchmarks/results/grasping.json`` and ``grasping.md``: per scenario th
 objects, per-object success k/n for each method, all-objects-per-trial success, and the planning and
 execution timings (grasp planning s per scene, wall s and simulated s per pick, real-time factor).
 
-Run: ``MUJOCO_GL=egl python benchmarks/grasping.py [--trials 3] [--workers 2] [--noisy] [--fresh]``.
+Run: ``MUJOCO_GL=egl python benchmarks/grasping.py [--suite rw|syn] [--trials 3] [--workers 2] [--noisy] [--fresh]``.
+The ``rw`` suite writes ``grasping.{json,md}``, the ``syn`` suite ``grasping_syn.{json,md}``.
 ``--noisy`` adds a TORM column with segmenter-like corrupted masks (error preset ``paper``).
 """
 
@@ -113,7 +114,7 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
     cols = [c for c in ("depth", "oracle", "torm", "torm_noisy") if c in result["totals"]]
     names = {"depth": "Depth baseline", "oracle": "Oracle (true meshes)", "torm": "TORM (GT masks)",
              "torm_noisy": "TORM (seg. errors)"}
-    L = ["# Grasping success in simulation (shape of the paper's Table III)", "",
+    L = [f"# Grasping success in simulation, suite `{result['config']['suite']}` (shape of the paper's Table III)", "",
          f"{result['config']['trials']} trial(s) per scenario, scene layouts seeded per (suite, scenario, trial), "
          f"{result['config']['workers']} workers. Cells: objects picked / objects attempted (and trials in which "
          "every object was picked). A pick succeeds only when the simulated object is lifted 25 cm, moved 20 cm, "
@@ -148,9 +149,10 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--suite", default="rw", choices=("rw", "syn"))
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--scenario", action="append", default=[], help="subset of rw1..rw8 (default all)")
+    ap.add_argument("--scenario", action="append", default=[], help="subset of the suite (default all)")
     ap.add_argument("--noisy", action="store_true", help="add TORM with corrupted masks (preset paper)")
     ap.add_argument("--fresh", action="store_true", help="start the run folders over instead of resuming")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -159,19 +161,20 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     load_before = os.getloadavg()
     t0 = time.monotonic()
-    base = dict(suite="rw", scenarios=tuple(args.scenario), trials=args.trials, workers=args.workers,
+    base = dict(suite=args.suite, scenarios=tuple(args.scenario), trials=args.trials, workers=args.workers,
                 timeout_s=900.0)
-    runs = {"main": RUNS / "bench_grasping"}
+    tag = "" if args.suite == "rw" else f"_{args.suite}"
+    runs = {"main": RUNS / f"bench_grasping{tag}"}
     run_benchmark(BenchConfig(methods=("depth", "oracle", "torm"), overrides=tuple(args.overrides), **base),
                   runs["main"], fresh=args.fresh)
     if args.noisy:
-        runs["torm_noisy"] = RUNS / "bench_grasping_noisy"
+        runs["torm_noisy"] = RUNS / f"bench_grasping{tag}_noisy"
         ov = (*args.overrides, "segmentation.segmenter=noisy", "segmentation.preset=paper")
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs["torm_noisy"], fresh=args.fresh)
     result = summarise(runs)
     cores = os.cpu_count() or 1
     result.update({
-        "config": {"suite": "rw", "trials": args.trials, "workers": args.workers, "scenarios": args.scenario,
+        "config": {"suite": args.suite, "trials": args.trials, "workers": args.workers, "scenarios": args.scenario,
                    "overrides": args.overrides, "noisy": args.noisy},
         "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "wall_s": round(time.monotonic() - t0, 1),
@@ -182,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     })
     out = Path(args.results_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "grasping.json").write_text(json.dumps(result, indent=2) + "\n")
-    write_markdown(result, out / "grasping.md")
+    (out / f"grasping{tag}.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_markdown(result, out / f"grasping{tag}.md")
     print(json.dumps(result["totals"], indent=2))
     return 0
 

@@ -92,3 +92,10 @@ def test_trial_writes_a_rerun_recording(tmp_path):
     rec = run_trial(cfg, record=str(tmp_path / "trial.rrd"))
     assert rec["success_rate"] == 1.0
     assert (tmp_path / "trial.rrd").stat().st_size > 10_000  # capture, meshes, grasps and the motion
+
+
+@pytest.mark.torm_smoke(scenario="syn11", seed=0, method="oracle", min_success=1.0)
+def test_dense_scene_places_every_object_on_free_table(torm_smoke_result):
+    # Eight objects: each drop-off must avoid the objects still there and the ones already put down.
+    picks = [o["pick"] for o in torm_smoke_result["objects"]]
+    assert len(picks) == 8 and not any(p["neighbours_disturbed"] for p in picks)

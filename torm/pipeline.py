@@ -85,6 +85,8 @@ class TrialConfig:
         robot: robot folder name or robot YAML path.
         re_perceive: capture and reconstruct again before every pick after the first.
         depth_view: view index for the depth baseline (None: the most top-down view).
+        place_area: ((x_min, y_min), (x_max, y_max)) of the table (m, world) where the 20 cm translation may
+            end: the released object must land inside it, away from the other objects.
         hardware_config: hardware YAML for ``backend="real"`` (host, serial port, hand-eye file...;
             default: $TORM_HARDWARE_CONFIG).
         arm_robot: allow the real arm to move (otherwise the real backend refuses every motion).
@@ -97,6 +99,7 @@ class TrialConfig:
     robot: str = "inovo_2f85"
     re_perceive: bool = False
     depth_view: int | None = None
+    place_area: tuple[tuple[float, float], tuple[float, float]] = ((0.25, -0.35), (0.85, 0.35))
     hardware_config: str | None = None
     arm_robot: bool = False
     capture: CaptureSettings = field(default_factory=CaptureSettings)
@@ -111,6 +114,10 @@ class TrialConfig:
             raise UnknownNameError("method", self.method, METHODS)
         if self.backend not in ("sim", "real"):
             raise UnknownNameError("backend", self.backend, ("sim", "real"))
+        lo, hi = np.asarray(self.place_area, dtype=float)
+        if lo.shape != (2,) or not np.all(hi > lo):
+            raise ConfigError(f"place_area must be ((x_min, y_min), (x_max, y_max)) with max > min, got "
+                              f"{self.place_area}")
 
 
 def versions() -> dict[str, str]:
@@ -274,7 +281,9 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     done: dict[int, dict[str, Any]] = {}
     # Pick easiest first: by the best grasp score of each object.
     order = sorted(by_label, key=lambda k: -(by_label[k][1][0].score if by_label[k][1] else -np.inf))
-    workspace = np.asarray(backend.world.workspace_bounds) if hasattr(backend, "world") else _default_ws()
+    place_area = np.asarray(config.place_area, dtype=float)
+    # Where every object is now (m, world xy): where it was seen, or where this trial put it down.
+    where = {k: c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in by_label.items()}
     timings["execution"] = 0.0
     aborted = None
     for n_pick, label in enumerate(order):
@@ -298,10 +307,10 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             done[label] = _obj(label, names, Outcome.OTHER, "reconstructed object matches no real object")
             continue
         xy = cloud.points_nx3[:, :2].mean(axis=0)
-        others = [c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in by_label.items() if k != label]
+        others = [p for k, p in where.items() if k != label]
         t = time.perf_counter()
         try:
-            dirs = free_directions(xy, others, workspace, config.pick.translate_distance)
+            dirs = free_directions(xy, others, place_area, config.pick.translate_distance)
             confirm = backend.operator_confirm() if hasattr(backend, "operator_confirm") else None
             res = execute_pick(backend, cands, dirs, config.success, config.pick, operator_confirm=confirm,
                                ignore_ids=[j for j in done if j != label])
@@ -310,6 +319,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             continue
         finally:
             timings["execution"] += time.perf_counter() - t
+        if res.translate_direction is not None and res.outcome in (Outcome.SUCCESS, Outcome.NOT_RELEASED):
+            where[label] = xy + config.pick.translate_distance * np.asarray(res.translate_direction)
         entry = _obj(label, names, res.outcome, res.message)
         entry["pick"] = res.as_dict()
         done[label] = entry
@@ -322,10 +333,6 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             done[i] = _obj(i, names, Outcome.NOT_RECONSTRUCTED, "no reconstructed object matched it")
     record["objects"] = [done[k] for k in sorted(done) if (not gt_ids or k in gt_ids)]
     record["spurious_objects"] = [done[k] for k in sorted(done) if gt_ids and k not in gt_ids]
-
-
-def _default_ws() -> np.ndarray:
-    return np.array([[0.33, -0.22, -0.005], [0.77, 0.22, 0.20]])
 
 
 def _object_names(backend: Any) -> dict[int, str]:
