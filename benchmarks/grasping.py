@@ -113,7 +113,7 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
 def write_markdown(result: dict[str, Any], path: Path) -> None:
     cols = [c for c in ("depth", "oracle", "torm", "torm_noisy") if c in result["totals"]]
     names = {"depth": "Depth baseline", "oracle": "Oracle (true meshes)", "torm": "TORM (GT masks)",
-             "torm_noisy": "TORM (seg. errors)"}
+             "torm_noisy": f"TORM (seg. errors: {result['config'].get('noisy_preset', 'paper')})"}
     L = [f"# Grasping success in simulation, suite `{result['config']['suite']}` (shape of the paper's Table III)", "",
          f"{result['config']['trials']} trial(s) per scenario, scene layouts seeded per (suite, scenario, trial), "
          f"{result['config']['workers']} workers. Cells: objects picked / objects attempted (and trials in which "
@@ -153,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--scenario", action="append", default=[], help="subset of the suite (default all)")
-    ap.add_argument("--noisy", action="store_true", help="add TORM with corrupted masks (preset paper)")
+    ap.add_argument("--noisy", action="store_true", help="add TORM with corrupted masks")
+    ap.add_argument("--noisy-preset", default="paper", help="error-model preset of --noisy (default paper)")
     ap.add_argument("--fresh", action="store_true", help="start the run folders over instead of resuming")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--results-dir", default=str(RESULTS))
@@ -163,19 +164,22 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     base = dict(suite=args.suite, scenarios=tuple(args.scenario), trials=args.trials, workers=args.workers,
                 timeout_s=900.0)
-    tag = "" if args.suite == "rw" else f"_{args.suite}"
-    runs = {"main": RUNS / f"bench_grasping{tag}"}
+    suite_tag = "" if args.suite == "rw" else f"_{args.suite}"
+    runs = {"main": RUNS / f"bench_grasping{suite_tag}"}
+    preset_tag = "" if args.noisy_preset == "paper" else f"_{args.noisy_preset}"
+    tag = suite_tag + (preset_tag if args.noisy else "")
     run_benchmark(BenchConfig(methods=("depth", "oracle", "torm"), overrides=tuple(args.overrides), **base),
                   runs["main"], fresh=args.fresh)
     if args.noisy:
-        runs["torm_noisy"] = RUNS / f"bench_grasping{tag}_noisy"
-        ov = (*args.overrides, "segmentation.segmenter=noisy", "segmentation.preset=paper")
+        runs["torm_noisy"] = RUNS / f"bench_grasping{suite_tag}_noisy{preset_tag}"
+        ov = (*args.overrides, "segmentation.segmenter=noisy", f"segmentation.preset={args.noisy_preset}")
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs["torm_noisy"], fresh=args.fresh)
     result = summarise(runs)
     cores = os.cpu_count() or 1
     result.update({
         "config": {"suite": args.suite, "trials": args.trials, "workers": args.workers, "scenarios": args.scenario,
-                   "overrides": args.overrides, "noisy": args.noisy},
+                   "overrides": args.overrides, "noisy": args.noisy,
+                   "noisy_preset": args.noisy_preset},
         "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "wall_s": round(time.monotonic() - t0, 1),
         "loadavg_before": [round(x, 2) for x in load_before],

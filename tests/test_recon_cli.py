@@ -70,3 +70,18 @@ def test_spurious_blobs_in_few_views_are_carved_not_fatal(capture_dir):
     masks[:, :12, :12] = 9
     with pytest.raises(ReconstructionError, match="object 9"):
         reconstruct(cap.with_masks(masks), ReconstructionConfig(grid_res=32, refine_iters=0))
+
+
+def test_views_with_entirely_empty_masks_are_ignored_not_carved(capture_dir):
+    from torm.capture.io import load_capture
+    from torm.errors import ReconstructionError
+    from torm.reconstruction import ReconstructionConfig, reconstruct
+
+    cap = load_capture(capture_dir)
+    masks = cap.masks().copy()
+    masks[::3] = 0  # the segmenter found nothing in a third of the views (far beyond the vote tolerance)
+    cfg = ReconstructionConfig(grid_res=32, refine_iters=0, points_per_object=256)
+    rec = reconstruct(cap.with_masks(masks), cfg)
+    assert rec.n_objects == 2 and rec.info["ignored_empty_views"] == list(range(0, 16, 3))
+    with pytest.raises(ReconstructionError, match="empty"):
+        reconstruct(cap.with_masks(masks), ReconstructionConfig(grid_res=32, refine_iters=0, ignore_empty_views=False))

@@ -65,6 +65,8 @@ class ReconstructionConfig:
         min_component_volume: components enclosing less than this volume (m^3) are dropped; so are inner
             cavities (components with negative signed volume). ``scene_mesh`` is the union of the kept ones.
         points_per_object: surface samples per object point cloud.
+        ignore_empty_views: leave out views whose mask is entirely empty when at most half the views are
+            (a segmenter that found nothing in a view says nothing about where the objects are not).
         border_fraction: an object whose silhouette touches the image border in more than this
             fraction of the views that see it is rejected (the cameras do not see it whole).
         outside_fraction: an object with more than this fraction of its pixels outside the projected
@@ -87,6 +89,7 @@ class ReconstructionConfig:
     min_component: int = 20
     min_component_volume: float = 1e-7
     points_per_object: int = 2048
+    ignore_empty_views: bool = True
     border_fraction: float = 0.5
     outside_fraction: float = 0.5
     dmtet: DMTetConfig = field(default_factory=DMTetConfig)
@@ -291,9 +294,17 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
 
     t = time.perf_counter()
     inst = validate_capture(capture, bounds, config)
-    sil = inst > 0
     Ks = capture.Ks()
     poses = capture.poses()
+    # A view whose mask is entirely empty while most views see objects is a segmenter miss, not evidence that
+    # the workspace is empty: with one object in the scene, such views alone could carve it away.
+    empty = ~inst.reshape(len(inst), -1).any(axis=1)
+    ignored = np.flatnonzero(empty).tolist() if config.ignore_empty_views and empty.sum() <= len(inst) // 2 else []
+    if ignored:
+        log.info("ignoring %d view(s) with empty masks: %s", len(ignored), ignored[:10])
+        keep = np.flatnonzero(~empty)
+        inst, Ks, poses = inst[keep], Ks[keep], poses[keep]
+    sil = inst > 0
     T_cw = np.linalg.inv(poses)
     timings["validate"] = time.perf_counter() - t
 
@@ -303,7 +314,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
 
     history: dict[str, list[float]] = {}
     info: dict = {"mode": config.mode, "grid_cells": list(grid.res), "grid_verts": grid.n_verts,
-                  "bounds": bounds.tolist(), "table_z": float(table_z)}
+                  "bounds": bounds.tolist(), "table_z": float(table_z), "ignored_empty_views": ignored}
     sup_masks, sup_K = downsample_masks(sil, Ks, config.mask_res)
     if config.mode == "fast":
         t = time.perf_counter()
