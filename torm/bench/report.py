@@ -300,6 +300,16 @@ def summary_blocks(run: Run) -> list[Block]:
 # ----------------------------------------------------------------------------------------- plots
 
 
+def _save_plot(fig: Any, out_dir: Path, name: str, caption: str) -> Block:
+    """Write ``fig`` as ``out_dir/name`` (PNG), close it and return its report block."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(out_dir / name, dpi=110)
+    plt.close(fig)
+    return ("img", name, caption)
+
+
 def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
     """Write the PNGs; returns image blocks for those written."""
     import matplotlib
@@ -323,11 +333,7 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
     ax.set_ylim(0, 105)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     ax.set_title(f"{run.name}: success by scenario")
-    fig.tight_layout()
-    name = f"{prefix}success_by_scenario.png"
-    fig.savefig(out_dir / name, dpi=110)
-    plt.close(fig)
-    blocks.append(("img", name, "success by scenario and method"))
+    blocks.append(_save_plot(fig, out_dir, f"{prefix}success_by_scenario.png", "success by scenario and method"))
     # IoU distribution
     iou = {m: [v for r in rows if r["method"] == m and (v := _get(r, "perception.silhouette_iou_mean")) is not None]
            for m in methods}
@@ -339,11 +345,7 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
         ax.set_xlabel("silhouette IoU (per-trial mean)")
         ax.set_ylabel("trials")
         ax.legend()
-        fig.tight_layout()
-        name = f"{prefix}iou_distribution.png"
-        fig.savefig(out_dir / name, dpi=110)
-        plt.close(fig)
-        blocks.append(("img", name, "silhouette IoU distribution"))
+        blocks.append(_save_plot(fig, out_dir, f"{prefix}iou_distribution.png", "silhouette IoU distribution"))
     # timing stack
     fig, ax = plt.subplots(figsize=(max(5.0, 1.3 * len(methods) + 3.5), 3.5))
     bottom = [0.0] * len(methods)
@@ -355,11 +357,7 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
     ax.set_ylabel("mean time per trial (s)")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     ax.set_title(f"{run.name}: time per stage")
-    fig.tight_layout()
-    name = f"{prefix}timing_stack.png"
-    fig.savefig(out_dir / name, dpi=110)
-    plt.close(fig)
-    blocks.append(("img", name, "time per stage"))
+    blocks.append(_save_plot(fig, out_dir, f"{prefix}timing_stack.png", "time per stage"))
     return blocks
 
 
