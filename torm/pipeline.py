@@ -44,16 +44,54 @@ log = logging.getLogger(__name__)
 CHAMFER_SAMPLES = 20000
 
 
+#: Image renderers of the simulated capture (``capture.renderer``).
+RENDERERS = ("mujoco",)
+#: Sensor-depth models of the simulated depth camera (``capture.depth_model``): ``ideal`` is exact
+#: z-depth of every opaque surface with glass invisible (the camera sees straight through it).
+DEPTH_MODELS = ("ideal",)
+#: Realism profiles of the simulated world (``world.realism``): ``ideal`` = nominal physics, exact
+#: cameras, exact tracking.
+REALISM_PROFILES = ("ideal",)
+
+
 @dataclass(frozen=True)
 class CaptureSettings:
-    """Multi-view capture: number of views and image scale of the 1280x720, 91.5 deg HFOV camera."""
+    """Multi-view capture: number of views and image scale of the 1280x720, 91.5 deg HFOV camera.
+
+    Attributes:
+        n_views: number of views.
+        scale: image scale (0.5 -> 640x360).
+        renderer: who renders the RGB images (one of :data:`RENDERERS`).
+        depth_model: how the sensor depth is simulated (one of :data:`DEPTH_MODELS`).
+    """
 
     n_views: int = 50
     scale: float = 0.5
+    renderer: str = "mujoco"
+    depth_model: str = "ideal"
 
     def __post_init__(self) -> None:
         if self.n_views < 1 or not self.scale > 0:
             raise ConfigError("capture.n_views must be >= 1 and capture.scale > 0")
+        if self.renderer not in RENDERERS:
+            raise UnknownNameError("capture.renderer", self.renderer, RENDERERS)
+        if self.depth_model not in DEPTH_MODELS:
+            raise UnknownNameError("capture.depth_model", self.depth_model, DEPTH_MODELS)
+
+
+@dataclass(frozen=True)
+class WorldSettings:
+    """The simulated world's fidelity.
+
+    Attributes:
+        realism: realism profile (one of :data:`REALISM_PROFILES`).
+    """
+
+    realism: str = "ideal"
+
+    def __post_init__(self) -> None:
+        if self.realism not in REALISM_PROFILES:
+            raise UnknownNameError("world.realism", self.realism, REALISM_PROFILES)
 
 
 @dataclass(frozen=True)
@@ -102,6 +140,7 @@ class TrialConfig:
     place_area: tuple[tuple[float, float], tuple[float, float]] = ((0.25, -0.35), (0.85, 0.35))
     hardware_config: str | None = None
     arm_robot: bool = False
+    world: WorldSettings = field(default_factory=WorldSettings)
     capture: CaptureSettings = field(default_factory=CaptureSettings)
     segmentation: SegmentationSettings = field(default_factory=SegmentationSettings)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
@@ -127,6 +166,26 @@ def versions() -> dict[str, str]:
 
     return {"torm": __version__, "mujoco": mujoco.__version__, "torch": torch.__version__,
             "numpy": np.__version__, "python": platform.python_version()}
+
+
+def trial_context(config: TrialConfig) -> dict[str, Any]:
+    """What produced a result: every choice that shapes it, by name (goes first into every trial record).
+
+    Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm only; ``noisy:<preset>`` for
+    the error model), ``renderer``, ``depth_model``, ``realism``, ``backend``.
+    """
+    seg = config.segmentation
+    segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
+    torm_method = config.method == "torm"
+    return {
+        "method": config.method,
+        "reconstruction_mode": config.reconstruction.mode if torm_method else None,
+        "segmenter": segmenter if torm_method else None,
+        "renderer": config.capture.renderer,
+        "depth_model": config.capture.depth_model,
+        "realism": config.world.realism,
+        "backend": config.backend,
+    }
 
 
 def make_backend(config: TrialConfig) -> Any:
@@ -215,7 +274,7 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: str | Non
     gt_ids = sorted(gt.object_poses()) if gt is not None else []
     result: dict[str, Any] = {
         "scenario": config.scenario, "seed": config.seed, "method": config.method, "backend": config.backend,
-        "config": to_dict(config), "versions": versions(), "timings": timings,
+        "context": trial_context(config), "config": to_dict(config), "versions": versions(), "timings": timings,
         "objects": [], "failure": None,
     }
     recorder = None
@@ -385,5 +444,6 @@ def trial_succeeded(record: dict[str, Any]) -> bool:
     return bool(record["objects"]) and all(o["outcome"] == Outcome.SUCCESS.value for o in record["objects"])
 
 
-__all__ = ["CaptureSettings", "SegmentationSettings", "TormError", "TrialConfig", "make_backend", "perceive",
-           "run_trial", "trial_succeeded", "versions"]
+__all__ = ["DEPTH_MODELS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings", "SegmentationSettings", "TormError",
+           "TrialConfig", "WorldSettings", "make_backend", "perceive", "run_trial", "trial_context", "trial_succeeded",
+           "versions"]
