@@ -348,6 +348,8 @@ class SimBackend:
         world: a built world with a robot (``build_world(..., robot="inovo_2f85")``).
         config: control, settling, gripper and safety settings.
         camera_config: optional ``sim.camera_rig.CameraRigConfig`` for :meth:`capture`.
+        depth_model: optional :class:`sim.depth.DepthModel` making the captures' sensor depth (default ``ideal``).
+        depth_seed: seed of the depth model's noise (default: the world's seed).
 
     Attributes:
         arm: the simulated arm wrapped in :class:`SafeArm`; ``arm.inner`` is the raw :class:`SimArm`.
@@ -357,7 +359,8 @@ class SimBackend:
 
     name = "sim"
 
-    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None) -> None:
+    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None,
+                 depth_model: Any = None, depth_seed: int | None = None) -> None:
         if world.robot_config is None:
             raise SceneError("SimBackend needs a world with a robot; build it with "
                              "build_world(..., robot='inovo_2f85')")
@@ -372,6 +375,7 @@ class SimBackend:
         self.clock = SimClock(self._sim)
         self.ground_truth = SimGroundTruth(world)
         self._camera_config = camera_config
+        self._depth_model, self._depth_seed = depth_model, depth_seed
         self._rig = None
 
     @classmethod
@@ -398,24 +402,32 @@ class SimBackend:
         self._sim.reset_baseline()
         self.gripper.reset()
 
-    def capture(self, n_views: int | None = None) -> Capture:
-        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden)."""
+    def _camera_rig(self) -> Any:
         if self._rig is None:
             from sim.camera_rig import SimCameraRig
 
-            self._rig = SimCameraRig.from_world(self.world, self._camera_config)
-        return self._rig.capture(n_views)
+            self._rig = SimCameraRig.from_world(self.world, self._camera_config, depth_model=self._depth_model,
+                                                depth_seed=self._depth_seed)
+        return self._rig
+
+    def capture(self, n_views: int | None = None) -> Capture:
+        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden)."""
+        return self._camera_rig().capture(n_views)
+
+    def capture_poses(self, n_views: int | None = None) -> np.ndarray:
+        """(V, 4, 4) camera-to-world poses (OpenCV axes, m) of the capture layout, without rendering."""
+        return self._camera_rig().poses(n_views)
+
+    def capture_views(self, n_views: int | None, indices: Any, channels: Any = None) -> Capture:
+        """Render only the layout views ``indices`` (of ``n_views``) with ``channels`` (default: the rig's)."""
+        return self._camera_rig().capture(n_views, indices=indices, channels=channels)
 
     def occlusion_ratio(self, capture: Capture) -> float:
         """The paper's OCC of ``capture`` (taken by :meth:`capture` in the current state): share of views
         in which at least one object is partly hidden by another (0..1)."""
         from sim.occlusion import occlusion_ratio
 
-        if self._rig is None:
-            from sim.camera_rig import SimCameraRig
-
-            self._rig = SimCameraRig.from_world(self.world, self._camera_config)
-        return float(occlusion_ratio(self._rig, capture).ratio)
+        return float(occlusion_ratio(self._camera_rig(), capture).ratio)
 
     def close(self) -> None:
         """Free the camera rig's GL context."""

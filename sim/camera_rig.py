@@ -1,8 +1,9 @@
 """Simulated image provider: a ring of virtual D455-like cameras on the upper hemisphere.
 
 The rig renders, per view, an RGB image, the ideal metric z-depth (first surface hit, glass
-included), the *sensor* depth a real depth camera would report (the glass geom group 2 hidden, so
-it sees through glass) and a ground-truth instance mask (0 background, k = object k).
+included), the *sensor* depth a real depth camera would report (made by the rig's depth model,
+:mod:`sim.depth`: ``ideal`` = exact opaque depth with glass invisible, the default; ``statistical`` /
+``stereo`` = a D455 that fails on glass) and a ground-truth instance mask (0 background, k = object k).
 
 Conventions
 -----------
@@ -345,6 +346,8 @@ class SimCameraRig:
         seed: int | None = None,
         table_height: float | None = None,
         workspace_bounds: np.ndarray | None = None,
+        depth_model: Any = None,
+        depth_seed: int = 0,
     ) -> None:
         self.model, self.data = model, data
         self.config = config or CameraRigConfig()
@@ -359,6 +362,13 @@ class SimCameraRig:
         self.object_names = tuple(object_names) if object_names is not None else tuple(f"object_{i}" for i in ids)
         self.scenario, self.seed = scenario, seed
         self.table_height = table_height
+        from sim.depth import IdealDepth
+
+        #: the sensor-depth model (:class:`sim.depth.DepthModel`) and the seed its noise is drawn from
+        self.depth_model = depth_model if depth_model is not None else IdealDepth()
+        self.depth_seed = int(depth_seed)
+        self._n_captures = 0
+        self._n_depth_renders = 0
         self.workspace_bounds = None if workspace_bounds is None else np.asarray(workspace_bounds, np.float64)
         self._off = _Offscreen(model, self.config.image_width, self.config.image_height)
         # free the GL context at garbage collection or interpreter exit (before EGL is torn down)
@@ -373,8 +383,13 @@ class SimCameraRig:
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.config.reflections)
 
     @classmethod
-    def from_world(cls, world: Any, config: CameraRigConfig | None = None) -> SimCameraRig:
-        """A rig for a ``sim.world.World`` (duck-typed: ``model``, ``data``, ``geom_to_instance``, ``objects``...)."""
+    def from_world(cls, world: Any, config: CameraRigConfig | None = None, depth_model: Any = None,
+                   depth_seed: int | None = None) -> SimCameraRig:
+        """A rig for a ``sim.world.World`` (duck-typed: ``model``, ``data``, ``geom_to_instance``, ``objects``...).
+
+        ``depth_model`` (a :class:`sim.depth.DepthModel`, default ``ideal``) makes the sensor depth; its noise is
+        seeded from ``depth_seed`` (default: the world's seed).
+        """
         objects = list(_attr(world, "objects", default=[]) or [])
         ids = [int(_attr(o, "instance_id", "k", "id", default=i + 1)) for i, o in enumerate(objects)] or None
         names = [str(_attr(o, "name", "kind", default=f"object_{i + 1}")) for i, o in enumerate(objects)] or None
@@ -384,6 +399,8 @@ class SimCameraRig:
             world.model, world.data, _attr(world, "geom_to_instance"), config,
             object_ids=ids, object_names=names, scenario=scenario, seed=_attr(world, "seed"),
             table_height=_attr(world, "table_height"), workspace_bounds=_attr(world, "workspace_bounds"),
+            depth_model=depth_model,
+            depth_seed=int(depth_seed if depth_seed is not None else (_attr(world, "seed", default=0) or 0)),
         )
 
     # ----------------------------------------------------------------------------------- basics
@@ -431,13 +448,16 @@ class SimCameraRig:
             raise CaptureError(f"the MuJoCo rig renders pinhole cameras without skew; got K={K.tolist()}")
 
     def render_arrays(
-        self, T_world_cam: np.ndarray, K: np.ndarray | None = None, channels: Iterable[str] | None = None
+        self, T_world_cam: np.ndarray, K: np.ndarray | None = None, channels: Iterable[str] | None = None,
+        noise_key: Sequence[int] | None = None,
     ) -> dict[str, np.ndarray]:
         """Render the requested channels (any non-empty subset of :data:`CHANNELS`) at one pose.
 
         Returns ``{"rgb": (H, W, 3) uint8, "depth": (H, W) float32 m, "sensor_depth": (H, W) float32 m,
         "mask": (H, W) int32}`` restricted to ``channels``. Passes: one lit pass for rgb, one id pass for
-        depth and mask together, one id pass with glass hidden for sensor depth.
+        depth and mask together, one id pass with glass hidden for sensor depth. The depth model's noise is
+        drawn from ``numpy.random.default_rng([depth_seed, *noise_key])`` (default key: a running count of
+        sensor-depth renders of this rig).
         """
         chans = set(self.config.channels if channels is None else channels)
         if not chans or not chans <= set(CHANNELS):
@@ -448,21 +468,44 @@ class SimCameraRig:
         mujoco.mj_forward(self.model, self.data)
         off = self._off
         out: dict[str, np.ndarray] = {}
-        if chans & {"rgb", "depth", "mask"}:
+        first_surface = "sensor_depth" in chans and self.depth_model.needs_first_surface
+        geom_ids = depth_first = None
+        if chans & {"rgb", "depth", "mask"} or first_surface:
             self._update(self._opt_full, T, K)
         if "rgb" in chans:
             out["rgb"], _ = off.render(ids=False, want_rgb=True, want_depth=False)
-        if "depth" in chans or "mask" in chans:
-            ids_rgb, raw = off.render(ids=True, want_rgb="mask" in chans, want_depth="depth" in chans)
+        if "depth" in chans or "mask" in chans or first_surface:
+            want_ids, want_depth = "mask" in chans or first_surface, "depth" in chans or first_surface
+            ids_rgb, raw = off.render(ids=True, want_rgb=want_ids, want_depth=want_depth)
             if raw is not None:
-                out["depth"] = off.linear_depth(raw)
+                depth_first = off.linear_depth(raw)
+                if "depth" in chans:
+                    out["depth"] = depth_first
             if ids_rgb is not None:
-                out["mask"] = self._lut[off.segment_ids(ids_rgb)]
+                geom_ids = off.segment_ids(ids_rgb)
+                if "mask" in chans:
+                    out["mask"] = self._lut[geom_ids]
         if "sensor_depth" in chans:
             self._update(self._opt_sensor, T, K)
             _, raw = off.render(ids=True, want_rgb=False, want_depth=True)
-            out["sensor_depth"] = off.linear_depth(raw)
+            depth_opaque = off.linear_depth(raw)
+            out["sensor_depth"] = self._sensor_depth(T, K, depth_opaque, depth_first, geom_ids, noise_key)
         return out
+
+    def _sensor_depth(self, T: np.ndarray, K: np.ndarray, depth_opaque: np.ndarray, depth_first: np.ndarray | None,
+                      geom_ids: np.ndarray | None, noise_key: Sequence[int] | None) -> np.ndarray:
+        """Run the depth model on what the simulator knows about this view (:class:`sim.depth.DepthScene`)."""
+        from sim.depth import DepthScene
+
+        key = (self._n_depth_renders,) if noise_key is None else tuple(int(k) for k in noise_key)
+        self._n_depth_renders += 1
+        rng = np.random.default_rng([self.depth_seed, *key])
+        if depth_first is None or geom_ids is None:  # a model that only needs the opaque pass
+            depth_first, geom_ids = depth_opaque, np.full(depth_opaque.shape, -1, np.int32)
+        groups = np.concatenate([self.model.geom_group, [-1]])
+        scene = DepthScene(K=K, T_world_cam=T, depth_first=depth_first, depth_opaque=depth_opaque,
+                           glass=groups[geom_ids] == GROUP_GLASS, instance=self._lut[geom_ids], renderer=self)
+        return self.depth_model.sensor_depth(scene, rng)
 
     def render_view(
         self,
@@ -470,6 +513,7 @@ class SimCameraRig:
         K: np.ndarray | None = None,
         channels: Iterable[str] | None = None,
         name: str = "",
+        noise_key: Sequence[int] | None = None,
     ) -> CameraView:
         """Render one view at ``T_world_cam`` (4, 4, OpenCV axes, m) with intrinsics ``K`` (default: the rig's).
 
@@ -479,7 +523,7 @@ class SimCameraRig:
         if not chans & {"rgb", "mask"}:
             raise CaptureError(f"channels {sorted(chans)} must contain 'rgb' or 'mask' to make a CameraView")
         K = self.K() if K is None else np.asarray(K, dtype=np.float64)
-        arrays = self.render_arrays(T_world_cam, K, chans)
+        arrays = self.render_arrays(T_world_cam, K, chans, noise_key)
         return CameraView(K=K, T_world_cam=np.asarray(T_world_cam, dtype=np.float64), name=name, **arrays)
 
     def render_geom_ids(self, T_world_cam: np.ndarray, K: np.ndarray | None = None, glass: bool = True) -> np.ndarray:
@@ -526,21 +570,30 @@ class SimCameraRig:
         channels: Iterable[str] | None = None,
         progress: bool = False,
         metadata: dict[str, Any] | None = None,
+        indices: Sequence[int] | None = None,
     ) -> Capture:
         """Render every view of the layout (or of ``poses`` (V, 4, 4), OpenCV camera-to-world) into a Capture.
 
-        ``n_views`` overrides the config's view count; ``progress`` shows a tqdm bar on stderr.
+        ``n_views`` overrides the config's view count; ``indices`` renders only those views of the layout
+        (names and sensor-depth noise keep the layout index); ``progress`` shows a tqdm bar on stderr.
         """
         Ts = self.poses(n_views) if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
         K = self.K()
-        it: Iterable[int] = range(len(Ts))
+        sel = list(range(len(Ts))) if indices is None else [int(i) for i in indices]
+        if any(not 0 <= i < len(Ts) for i in sel):
+            raise CaptureError(f"capture indices {sel} must lie in 0..{len(Ts) - 1} (the layout's views)")
+        it: Iterable[int] = sel
         if progress:
             from tqdm import tqdm
 
             it = tqdm(it, desc="capture", unit="view")
-        views = [self.render_view(Ts[i], K, channels, name=f"view_{i:03d}") for i in it]
+        n_cap = self._n_captures
+        self._n_captures += 1
+        views = [self.render_view(Ts[i], K, channels, name=f"view_{i:03d}", noise_key=(n_cap, i)) for i in it]
         meta = {
             "renderer": f"mujoco {mujoco.__version__} offscreen",
+            "depth_model": self.depth_model.record(),
+            "layout_indices": sel,
             "camera_rig": {
                 "radius": self.config.radius, "centre": list(self.config.centre),
                 "target_height": self.config.target_height, "hfov_deg": self.config.hfov_deg,
