@@ -102,3 +102,13 @@ def is_rotation(R: np.ndarray, tol: float = 1e-5) -> bool:
         and np.allclose(R.T @ R, np.eye(3), atol=tol)
         and abs(np.linalg.det(R) - 1.0) < tol
     )
+
+
+def backproject_depth(depth_hxw: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(H, W, 3) camera-frame points (m, OpenCV axes) of z-depth ``depth_hxw`` (m); pixel centres at integer + 0.5."""
+    H, W = depth_hxw.shape
+    v, u = np.mgrid[0:H, 0:W]
+    z = np.asarray(depth_hxw, dtype=np.float64)
+    x = (u + 0.5 - K[0, 2]) / K[0, 0] * z
+    y = (v + 0.5 - K[1, 2]) / K[1, 1] * z
+    return np.stack([x, y, z], axis=-1)

@@ -1,13 +1,17 @@
 """Perception front-ends of a trial: what each method turns a capture into before grasp planning.
 
-Three methods share one output (:class:`Perception`: per-object point clouds with normals, optional
+Four methods share one output (:class:`Perception`: per-object point clouds with normals, optional
 meshes) so the same planner and executor compare them fairly, as in the paper's Table III:
 
 - ``torm``: silhouettes (GT, error model or Grounding DINO + SAM) -> DMTet-Multi / visual hull ->
   connectivity split -> equal-count surface samples.
-- ``depth``: the depth-camera baseline: a single view's *sensor* depth (which, like a real D455,
-  sees through glass) back-projected inside each object's mask; what a depth-based planner such as
-  GraspNet would get.
+- ``depth`` ("single-view depth, symmetric completion"): one view's *sensor* depth (from the capture's
+  depth model, :mod:`sim.depth`) back-projected inside each object's mask, the unseen back added by
+  mirroring (:func:`complete_by_symmetry`); what a depth-based planner such as GraspNet would get. Only
+  that one view is captured (depth + mask), the most top-down one unless ``depth_view`` says otherwise.
+- ``depth_fusion`` ("multi-view TSDF fusion of sensor depth"): every capture view's sensor depth fused into
+  a TSDF with Open3D, per-object meshes cut by the masks (:mod:`torm.fusion`); the views captured are the
+  same layout TORM uses, depth + mask only.
 - ``oracle``: samples of the true object meshes (simulation only): the upper bound.
 
 Frames: world (robot base, z up, m).
@@ -27,8 +31,11 @@ from torm.types import Capture, ObjectPointCloud, TriMesh
 
 log = logging.getLogger(__name__)
 
-METHODS = ("torm", "depth", "oracle")
-Method = Literal["torm", "depth", "oracle"]
+METHODS = ("torm", "depth", "depth_fusion", "oracle")
+Method = Literal["torm", "depth", "depth_fusion", "oracle"]
+#: What each method is, for result tables (name what ran).
+METHOD_LABELS = {"torm": "TORM", "depth": "single-view depth (symmetric completion)",
+                 "depth_fusion": "depth fusion (TSDF, all views)", "oracle": "oracle (true meshes)"}
 
 
 @dataclass
@@ -130,10 +137,34 @@ def depth_point_clouds(capture: Capture, view_index: int, n_points: int, rng: np
     return clouds
 
 
+def most_top_down_pose(poses_vx4x4: np.ndarray) -> int:
+    """Index of the camera pose (V, 4, 4, OpenCV camera-to-world) whose optical axis points most steeply down."""
+    P = np.asarray(poses_vx4x4, dtype=np.float64).reshape(-1, 4, 4)
+    return int(np.argmax(-P[:, 2, 2]))
+
+
 def most_top_down_view(capture: Capture) -> int:
     """Index of the view whose optical axis points most steeply down (the typical wrist-camera view)."""
-    down = np.array([0.0, 0.0, -1.0])
-    return int(np.argmax([v.T_world_cam[:3, 2] @ down for v in capture.views]))
+    return most_top_down_pose(capture.poses())
+
+
+def perceive_depth_fusion(capture: Capture, fusion_config: Any, n_points: int, rng: np.random.Generator
+                          ) -> Perception:
+    """Depth-fusion baseline: TSDF of every view's sensor depth, per-object meshes cut by the capture's masks.
+
+    ``object_index`` = the mask's instance id; objects whose cut is too small are left out (they end up
+    "not reconstructed"). Raises :class:`ReconstructionError` when no object survives.
+    """
+    from torm.fusion import fuse_objects
+    from torm.mesh.sample import sample_surface
+
+    meshes, info = fuse_objects(capture, fusion_config)
+    if not meshes:
+        raise ReconstructionError("depth fusion: no object surface was fused inside the masks (the sensor returned "
+                                  "no depth on them)")
+    clouds = [sample_surface(m, n_points, rng, object_index=k) for k, m in meshes.items()]
+    info["baseline"] = "depth fusion (Open3D VoxelBlockGrid TSDF), mask cut"
+    return Perception(clouds, list(meshes.values()), info)
 
 
 def oracle_point_clouds(meshes_by_id: dict[int, TriMesh], n_points: int, rng: np.random.Generator):

@@ -25,18 +25,22 @@ from torm.config import to_dict
 from torm.errors import ConfigError, ExecutionError, ReconstructionError, TormError, UnknownNameError
 from torm.execution.pick import PickConfig, execute_pick, free_directions
 from torm.execution.success import Outcome, SuccessCriteria
+from torm.fusion import FusionConfig
 from torm.grasp.planner import GraspPlannerConfig, plan_grasps
 from torm.perception import (
     METHODS,
     Perception,
     depth_point_clouds,
     label_by_ground_truth,
+    most_top_down_pose,
     most_top_down_view,
     oracle_point_clouds,
+    perceive_depth_fusion,
     perceive_torm,
 )
 from torm.reconstruction.api import ReconstructionConfig
 from torm.runtime import configure_threads, ensure_headless_gl
+from torm.types import Capture
 
 log = logging.getLogger(__name__)
 
@@ -46,9 +50,11 @@ CHAMFER_SAMPLES = 20000
 
 #: Image renderers of the simulated capture (``capture.renderer``).
 RENDERERS = ("mujoco",)
-#: Sensor-depth models of the simulated depth camera (``capture.depth_model``): ``ideal`` is exact
-#: z-depth of every opaque surface with glass invisible (the camera sees straight through it).
-DEPTH_MODELS = ("ideal",)
+#: Sensor-depth models of the simulated depth camera (``capture.depth_model``, :mod:`sim.depth`): ``ideal`` is
+#: exact z-depth of every opaque surface with glass invisible (the camera sees straight through it);
+#: ``statistical`` a D455 whose glass pixels go missing / see through / read near the surface with
+#: incidence-dependent probabilities; ``stereo`` an active-stereo D455 simulation (IR dots + SGBM).
+DEPTH_MODELS = ("ideal", "statistical", "stereo")
 #: Realism profiles of the simulated world (``world.realism``): ``ideal`` = nominal physics, exact
 #: cameras, exact tracking.
 REALISM_PROFILES = ("ideal",)
@@ -63,12 +69,15 @@ class CaptureSettings:
         scale: image scale (0.5 -> 640x360).
         renderer: who renders the RGB images (one of :data:`RENDERERS`).
         depth_model: how the sensor depth is simulated (one of :data:`DEPTH_MODELS`).
+        depth_options: overrides of the depth model's config fields (e.g. ``{"correlation_px": 0}`` for
+            ``statistical``; see ``sim/depth/README.md``); unknown keys are rejected when the backend is built.
     """
 
     n_views: int = 50
     scale: float = 0.5
     renderer: str = "mujoco"
     depth_model: str = "ideal"
+    depth_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.n_views < 1 or not self.scale > 0:
@@ -118,11 +127,13 @@ class TrialConfig:
     Attributes:
         scenario: scenario name (``torm scenes list``).
         seed: scene layout seed; also seeds segmentation noise and sampling.
-        method: ``torm`` | ``depth`` | ``oracle`` (see :mod:`torm.perception`).
+        method: ``torm`` | ``depth`` (single-view depth) | ``depth_fusion`` (TSDF fusion of every view's depth) |
+            ``oracle`` (see :mod:`torm.perception`).
         backend: ``sim`` or ``real``.
         robot: robot folder name or robot YAML path.
         re_perceive: capture and reconstruct again before every pick after the first.
-        depth_view: view index for the depth baseline (None: the most top-down view).
+        depth_view: layout view index for the single-view depth baseline (None: the most top-down view).
+        fusion: TSDF settings of the ``depth_fusion`` baseline.
         place_area: ((x_min, y_min), (x_max, y_max)) of the table (m, world) where the 20 cm translation may
             end: the released object must land inside it, away from the other objects.
         hardware_config: hardware YAML for ``backend="real"`` (host, serial port, hand-eye file...;
@@ -132,7 +143,7 @@ class TrialConfig:
 
     scenario: str = "rw3"
     seed: int = 0
-    method: Literal["torm", "depth", "oracle"] = "torm"
+    method: Literal["torm", "depth", "depth_fusion", "oracle"] = "torm"
     backend: Literal["sim", "real"] = "sim"
     robot: str = "inovo_2f85"
     re_perceive: bool = False
@@ -142,6 +153,7 @@ class TrialConfig:
     arm_robot: bool = False
     world: WorldSettings = field(default_factory=WorldSettings)
     capture: CaptureSettings = field(default_factory=CaptureSettings)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
     segmentation: SegmentationSettings = field(default_factory=SegmentationSettings)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     grasp: GraspPlannerConfig = field(default_factory=GraspPlannerConfig)
@@ -171,8 +183,9 @@ def versions() -> dict[str, str]:
 def trial_context(config: TrialConfig) -> dict[str, Any]:
     """What produced a result: every choice that shapes it, by name (goes first into every trial record).
 
-    Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm only; ``noisy:<preset>`` for
-    the error model), ``renderer``, ``depth_model``, ``realism``, ``backend``.
+    Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm: its segmenter, ``noisy:<preset>``
+    for the error model; the depth baselines: ``gt``, they cut with the capture's masks), ``renderer``,
+    ``depth_model``, ``realism``, ``backend``.
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
@@ -180,7 +193,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     return {
         "method": config.method,
         "reconstruction_mode": config.reconstruction.mode if torm_method else None,
-        "segmenter": segmenter if torm_method else None,
+        "segmenter": segmenter if torm_method else ("gt" if config.method in ("depth", "depth_fusion") else None),
         "renderer": config.capture.renderer,
         "depth_model": config.capture.depth_model,
         "realism": config.world.realism,
@@ -194,11 +207,13 @@ def make_backend(config: TrialConfig) -> Any:
         ensure_headless_gl()
         from sim.backend import SimBackend
         from sim.camera_rig import CameraRigConfig
+        from sim.depth import make_depth_model
         from sim.world import build_world
 
         world = build_world(config.scenario, config.seed, robot=config.robot)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
-        return SimBackend(world, camera_config=cam)
+        depth = make_depth_model(config.capture.depth_model, config.capture.depth_options)
+        return SimBackend(world, camera_config=cam, depth_model=depth, depth_seed=config.seed)
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)
@@ -224,11 +239,47 @@ def _gripper(backend: Any):
     return GripperGeometry.from_robot_config(to_dict(rcfg.gripper.geometry))
 
 
+#: Channels each depth baseline captures (it pays for nothing else): sensor depth and the GT masks.
+DEPTH_CHANNELS = ("sensor_depth", "mask")
+
+
+def _capture(config: TrialConfig, backend: Any) -> tuple[Capture, dict[str, Any]]:
+    """The capture ``config.method`` needs, and what was captured (views, channels, layout indices).
+
+    ``torm`` / ``oracle``: the full ``capture.n_views`` RGB capture. ``depth``: one view of the layout (the
+    most top-down one, or ``depth_view``), sensor depth + mask only. ``depth_fusion``: every view of the
+    layout (the trajectory TORM flies, so both see the same camera poses), sensor depth + mask only. A
+    backend without partial captures (``capture_views``) captures everything and the baseline takes a subset.
+    """
+    n = config.capture.n_views
+    depth_method = config.method in ("depth", "depth_fusion")
+    partial = depth_method and hasattr(backend, "capture_views") and hasattr(backend, "capture_poses")
+    if config.method == "depth":
+        if partial:
+            poses = backend.capture_poses(n)
+            view = config.depth_view if config.depth_view is not None else most_top_down_pose(poses)
+            if not 0 <= view < len(poses):
+                raise ConfigError(f"depth_view {view} is outside the capture layout's views 0..{len(poses) - 1}")
+            cap = backend.capture_views(n, [view], DEPTH_CHANNELS)
+        else:
+            full = backend.capture(n)
+            view = config.depth_view if config.depth_view is not None else most_top_down_view(full)
+            cap = full.subset([view])
+        return cap, {"depth_view": int(view), "views_captured": 1 if partial else len(full), "views_used": 1,
+                     "channels": list(DEPTH_CHANNELS) if partial else "all"}
+    if config.method == "depth_fusion" and partial:
+        cap = backend.capture_views(n, list(range(n)), DEPTH_CHANNELS)
+        return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": list(DEPTH_CHANNELS)}
+    cap = backend.capture(n)
+    return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": "all"}
+
+
 def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: dict[str, float]) -> Perception:
     """Capture and turn the capture into per-object geometry with ``config.method``."""
     t = time.perf_counter()
-    capture = backend.capture(config.capture.n_views)
-    timings["capture"] = timings.get("capture", 0.0) + time.perf_counter() - t
+    capture, cap_info = _capture(config, backend)
+    cap_info["capture_s"] = time.perf_counter() - t
+    timings["capture"] = timings.get("capture", 0.0) + cap_info["capture_s"]
     gt = backend.ground_truth
     n_points = config.reconstruction.points_per_object
     t = time.perf_counter()
@@ -240,9 +291,12 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
             cents = {k: m.verts_vx3.mean(axis=0) for k, m in gt.object_meshes().items()}
             per.point_clouds, per.info["matching"] = label_by_ground_truth(per.point_clouds, cents)
     elif config.method == "depth":
-        view = config.depth_view if config.depth_view is not None else most_top_down_view(capture)
-        per = Perception(depth_point_clouds(capture, view, n_points, rng), [], {"view": view})
+        per = Perception(depth_point_clouds(capture, 0, n_points, rng), [], {"view": cap_info["depth_view"]})
         per.meshes = [None] * len(per.point_clouds)
+        per.info["baseline"] = "single-view depth, symmetric completion"
+        timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
+    elif config.method == "depth_fusion":
+        per = perceive_depth_fusion(capture, config.fusion, n_points, rng)
         timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
     else:
         if gt is None:
@@ -251,6 +305,7 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
         per = Perception(clouds, meshes, {})
         timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
     per.info["capture"] = capture
+    per.info["capture_info"] = cap_info
     return per
 
 
@@ -409,6 +464,7 @@ def _obj(label: int, names: dict[int, str], outcome: Outcome, message: str = "")
 def _perception_summary(per: Perception, backend: Any, config: TrialConfig) -> dict[str, Any]:
     """Reconstruction metrics against the simulator's truth (when there is one)."""
     out: dict[str, Any] = {k: v for k, v in per.info.items() if k not in ("capture",)}
+    out["depth_model"] = per.info["capture"].metadata.get("depth_model") if "capture" in per.info else None
     gt = backend.ground_truth
     out["n_objects_found"] = sum(1 for c in per.point_clouds if c.object_index < 1000)
     out["n_objects_reconstructed"] = len(per.point_clouds)

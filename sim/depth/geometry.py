@@ -9,15 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def backproject(depth_hxw: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(H, W, 3) camera-frame points (m) of z-depth ``depth_hxw`` (m); pixel centres at integer + 0.5."""
-    H, W = depth_hxw.shape
-    v, u = np.mgrid[0:H, 0:W]
-    z = depth_hxw.astype(np.float64)
-    x = (u + 0.5 - K[0, 2]) / K[0, 0] * z
-    y = (v + 0.5 - K[1, 2]) / K[1, 1] * z
-    return np.stack([x, y, z], axis=-1)
+from torm.geometry import backproject_depth as backproject
 
 
 def incidence_deg(depth_hxw: np.ndarray, K: np.ndarray, surface_id_hxw: np.ndarray,

@@ -22,7 +22,7 @@ from typing import Any, Literal
 from torm.config import parse_override
 from torm.errors import ConfigError, UnknownNameError
 
-METHODS: tuple[str, ...] = ("torm", "depth", "oracle")
+METHODS: tuple[str, ...] = ("torm", "depth", "depth_fusion", "oracle")
 ENGINES: tuple[str, ...] = ("pool", "ray")
 RECORD_MODES: tuple[str, ...] = ("none", "failures", "all")
 DEFAULT_TRIAL_FN = "torm.bench.trial:run_spec"

@@ -19,8 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--scenario", default=None, help="scenario name (torm scenes list); default rw3")
     p.add_argument("--seed", type=int, default=None, help="layout / noise seed (default 0)")
-    p.add_argument("--method", choices=("torm", "depth", "oracle"), default=None,
-                   help="perception: torm (reconstruction), depth (single-view depth baseline), oracle (true meshes)")
+    p.add_argument("--method", choices=("torm", "depth", "depth_fusion", "oracle"), default=None,
+                   help="perception: torm (reconstruction), depth (single-view depth, symmetric completion), "
+                   "depth_fusion (TSDF fusion of every view's depth), oracle (true meshes)")
     p.add_argument("--segmenter", choices=("gt", "noisy", "grounded_sam"), default=None,
                    help="silhouette source for --method torm (default gt)")
     p.add_argument("--preset", default=None, help="error-model preset for --segmenter noisy (default paper)")
