@@ -5,6 +5,9 @@ included), the *sensor* depth a real depth camera would report (made by the rig'
 :mod:`sim.depth`: ``ideal`` = exact opaque depth with glass invisible, the default; ``statistical`` /
 ``stereo`` = a D455 that fails on glass) and a ground-truth instance mask (0 background, k = object k).
 
+RGB can come from another renderer (``rgb_renderer``: a :class:`sim.render.Renderer`, e.g. the physically based
+path tracer of ``capture.renderer: pbr``); depth, sensor depth and instance masks always come from MuJoCo.
+
 Conventions
 -----------
 - World frame = robot base frame, z up, metres. Poses are ``T_world_cam`` (4, 4) in **OpenCV**
@@ -296,6 +299,12 @@ class _Offscreen:
         return lut[seg]
 
 
+def _renderer_label(renderer: Any) -> str:
+    """Who rendered the RGB images, e.g. ``pbr mitsuba 3.9.1 llvm_ad_rgb spp 16 ...`` (capture metadata)."""
+    describe = getattr(renderer, "describe", None)
+    return describe() if callable(describe) else str(getattr(renderer, "name", type(renderer).__name__))
+
+
 def _make_option(groups: Iterable[int]) -> mujoco.MjvOption:
     opt = mujoco.MjvOption()
     opt.geomgroup[:] = 0
@@ -328,6 +337,8 @@ class SimCameraRig:
         config: the rig layout and intrinsics.
         object_ids, object_names: the scene's objects (instance ids and names), copied into captures.
         scenario, seed, table_height, workspace_bounds: metadata copied into captures.
+        rgb_renderer: a :class:`sim.render.Renderer` that renders the RGB images instead of MuJoCo (e.g. the
+            physically based ``sim.render.MitsubaRenderer``); depth and instance masks still come from MuJoCo.
 
     Use :meth:`from_world` with a ``sim.world.World`` (or any object with ``model``, ``data`` and
     ``geom_to_instance``). Call :meth:`close` (or use ``with``) to free the GL context.
@@ -346,10 +357,12 @@ class SimCameraRig:
         seed: int | None = None,
         table_height: float | None = None,
         workspace_bounds: np.ndarray | None = None,
+        rgb_renderer: Any = None,
         depth_model: Any = None,
         depth_seed: int = 0,
     ) -> None:
         self.model, self.data = model, data
+        self.rgb_renderer = rgb_renderer
         self.config = config or CameraRigConfig()
         g2i = np.zeros(model.ngeom, np.int32) if geom_to_instance is None else np.asarray(geom_to_instance)
         if g2i.shape != (model.ngeom,):
@@ -383,8 +396,8 @@ class SimCameraRig:
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.config.reflections)
 
     @classmethod
-    def from_world(cls, world: Any, config: CameraRigConfig | None = None, depth_model: Any = None,
-                   depth_seed: int | None = None) -> SimCameraRig:
+    def from_world(cls, world: Any, config: CameraRigConfig | None = None, rgb_renderer: Any = None,
+                   depth_model: Any = None, depth_seed: int | None = None) -> SimCameraRig:
         """A rig for a ``sim.world.World`` (duck-typed: ``model``, ``data``, ``geom_to_instance``, ``objects``...).
 
         ``depth_model`` (a :class:`sim.depth.DepthModel`, default ``ideal``) makes the sensor depth; its noise is
@@ -399,6 +412,7 @@ class SimCameraRig:
             world.model, world.data, _attr(world, "geom_to_instance"), config,
             object_ids=ids, object_names=names, scenario=scenario, seed=_attr(world, "seed"),
             table_height=_attr(world, "table_height"), workspace_bounds=_attr(world, "workspace_bounds"),
+            rgb_renderer=rgb_renderer,
             depth_model=depth_model,
             depth_seed=int(depth_seed if depth_seed is not None else (_attr(world, "seed", default=0) or 0)),
         )
@@ -472,7 +486,9 @@ class SimCameraRig:
         geom_ids = depth_first = None
         if chans & {"rgb", "depth", "mask"} or first_surface:
             self._update(self._opt_full, T, K)
-        if "rgb" in chans:
+        if "rgb" in chans and self.rgb_renderer is not None:
+            out["rgb"] = self._external_rgb(T, K)
+        elif "rgb" in chans:
             out["rgb"], _ = off.render(ids=False, want_rgb=True, want_depth=False)
         if "depth" in chans or "mask" in chans or first_surface:
             want_ids, want_depth = "mask" in chans or first_surface, "depth" in chans or first_surface
@@ -506,6 +522,12 @@ class SimCameraRig:
         scene = DepthScene(K=K, T_world_cam=T, depth_first=depth_first, depth_opaque=depth_opaque,
                            glass=groups[geom_ids] == GROUP_GLASS, instance=self._lut[geom_ids], renderer=self)
         return self.depth_model.sensor_depth(scene, rng)
+
+    def _external_rgb(self, T_world_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+        from sim.render.base import RenderCamera
+
+        cam = RenderCamera(K, T_world_cam, self._off.width, self._off.height)
+        return self.rgb_renderer.render([cam], rgb=True, instance=False)[0].rgb
 
     def render_view(
         self,
@@ -591,7 +613,8 @@ class SimCameraRig:
         self._n_captures += 1
         views = [self.render_view(Ts[i], K, channels, name=f"view_{i:03d}", noise_key=(n_cap, i)) for i in it]
         meta = {
-            "renderer": f"mujoco {mujoco.__version__} offscreen",
+            "renderer": f"mujoco {mujoco.__version__} offscreen" if self.rgb_renderer is None
+            else _renderer_label(self.rgb_renderer),
             "depth_model": self.depth_model.record(),
             "layout_indices": sel,
             "camera_rig": {

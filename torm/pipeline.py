@@ -21,6 +21,7 @@ from typing import Any, Literal
 import numpy as np
 
 from torm import __version__
+from torm.capture.render_settings import PbrSettings
 from torm.config import to_dict
 from torm.errors import ConfigError, ExecutionError, ReconstructionError, TormError, UnknownNameError
 from torm.execution.pick import PickConfig, execute_pick, free_directions
@@ -49,7 +50,7 @@ CHAMFER_SAMPLES = 20000
 
 
 #: Image renderers of the simulated capture (``capture.renderer``).
-RENDERERS = ("mujoco",)
+RENDERERS = ("mujoco", "pbr")
 #: Sensor-depth models of the simulated depth camera (``capture.depth_model``, :mod:`sim.depth`): ``ideal`` is
 #: exact z-depth of every opaque surface with glass invisible (the camera sees straight through it);
 #: ``statistical`` a D455 whose glass pixels go missing / see through / read near the surface with
@@ -67,7 +68,10 @@ class CaptureSettings:
     Attributes:
         n_views: number of views.
         scale: image scale (0.5 -> 640x360).
-        renderer: who renders the RGB images (one of :data:`RENDERERS`).
+        renderer: who renders the RGB images (one of :data:`RENDERERS`): ``mujoco`` rasterises (glass as alpha
+            blending), ``pbr`` path-traces with Mitsuba 3 (refracting glass; ``sim.render``). Cameras, depth and
+            instance masks are the same for both.
+        pbr: settings of the ``pbr`` renderer (samples, bounces, denoiser, variant, cache).
         depth_model: how the sensor depth is simulated (one of :data:`DEPTH_MODELS`).
         depth_options: overrides of the depth model's config fields (e.g. ``{"correlation_px": 0}`` for
             ``statistical``; see ``sim/depth/README.md``); unknown keys are rejected when the backend is built.
@@ -78,6 +82,7 @@ class CaptureSettings:
     renderer: str = "mujoco"
     depth_model: str = "ideal"
     depth_options: dict[str, Any] = field(default_factory=dict)
+    pbr: PbrSettings = field(default_factory=PbrSettings)
 
     def __post_init__(self) -> None:
         if self.n_views < 1 or not self.scale > 0:
@@ -213,7 +218,8 @@ def make_backend(config: TrialConfig) -> Any:
         world = build_world(config.scenario, config.seed, robot=config.robot)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
         depth = make_depth_model(config.capture.depth_model, config.capture.depth_options)
-        return SimBackend(world, camera_config=cam, depth_model=depth, depth_seed=config.seed)
+        return SimBackend(world, camera_config=cam, renderer=config.capture.renderer,
+                          render_settings=config.capture.pbr, depth_model=depth, depth_seed=config.seed)
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)
