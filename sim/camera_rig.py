@@ -363,6 +363,8 @@ class SimCameraRig:
     ) -> None:
         self.model, self.data = model, data
         self.rgb_renderer = rgb_renderer
+        #: the ``sim.world.World`` when built with :meth:`from_world` (None otherwise)
+        self.world: Any = None
         self.config = config or CameraRigConfig()
         g2i = np.zeros(model.ngeom, np.int32) if geom_to_instance is None else np.asarray(geom_to_instance)
         if g2i.shape != (model.ngeom,):
@@ -408,7 +410,7 @@ class SimCameraRig:
         names = [str(_attr(o, "name", "kind", default=f"object_{i + 1}")) for i, o in enumerate(objects)] or None
         scenario = _attr(world, "scenario", "scenario_name", default="")
         scenario = str(_attr(scenario, "name", default=scenario))
-        return cls(
+        rig = cls(
             world.model, world.data, _attr(world, "geom_to_instance"), config,
             object_ids=ids, object_names=names, scenario=scenario, seed=_attr(world, "seed"),
             table_height=_attr(world, "table_height"), workspace_bounds=_attr(world, "workspace_bounds"),
@@ -416,6 +418,8 @@ class SimCameraRig:
             depth_model=depth_model,
             depth_seed=int(depth_seed if depth_seed is not None else (_attr(world, "seed", default=0) or 0)),
         )
+        rig.world = world  # the stereo depth model renders the world itself
+        return rig
 
     # ----------------------------------------------------------------------------------- basics
     def K(self) -> np.ndarray:
