@@ -29,6 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scale", type=float, default=None, help="scale the image size (e.g. 0.5 -> 640x360)")
     p.add_argument("--out", required=True, help="output capture folder (transforms.json convention)")
     p.add_argument("--robot", default="inovo_2f85", help="robot attached to the scene (hidden in renders), or 'none'")
+    p.add_argument("--depth-model", default="ideal", choices=("ideal", "statistical", "stereo"),
+                   help="sensor-depth model (sim/depth): ideal (glass invisible), statistical, stereo (default ideal)")
     p.add_argument("--no-occlusion", action="store_true", help="skip computing the occlusion ratio")
     p.add_argument("--progress", action="store_true", help="show a progress bar on stderr")
     p.add_argument("--rrd", default=None, help="also write a rerun recording of the capture to this file")
@@ -55,7 +57,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     world = build_world(args.scenario, args.seed, robot=None if args.robot == "none" else args.robot)
     timings["build_world_s"] = time.perf_counter() - t0
-    with SimCameraRig.from_world(world, rig_cfg) as rig:
+    from sim.depth import make_depth_model
+
+    with SimCameraRig.from_world(world, rig_cfg, depth_model=make_depth_model(args.depth_model),
+                                 depth_seed=args.seed) as rig:
         t0 = time.perf_counter()
         cap = rig.capture(progress=args.progress)
         timings["render_s"] = time.perf_counter() - t0
