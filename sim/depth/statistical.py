@@ -154,7 +154,15 @@ class StatisticalDepth:
         angle (deg, NaN where undefined)."""
         cfg = self.config
         H, W = scene.shape
-        ang = incidence_deg(scene.depth_first, scene.K, scene.instance)
+        ang = np.full((H, W), np.nan)
+        rows, cols = np.nonzero(scene.glass)
+        if len(rows):  # normals only where there is glass (its bounding box plus a 1-pixel margin)
+            r0, r1 = max(rows.min() - 1, 0), min(rows.max() + 2, H)
+            c0, c1 = max(cols.min() - 1, 0), min(cols.max() + 2, W)
+            K = scene.K.copy()
+            K[0, 2] -= c0
+            K[1, 2] -= r0
+            ang[r0:r1, c0:c1] = incidence_deg(scene.depth_first[r0:r1, c0:c1], K, scene.instance[r0:r1, c0:c1])
         b = angle_bins(ang, cfg.bin_edges_deg)
         field_ = correlated_field((H, W), 0.5 * cfg.correlation_px * W / REFERENCE_WIDTH, rng)
         ids = scene.instance.astype(np.int64)
