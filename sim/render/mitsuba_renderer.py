@@ -47,6 +47,16 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722])
 _CV_TO_MI = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
+def cv_to_mitsuba(T_world_cam: np.ndarray) -> Any:
+    """``mi.ScalarTransform4f`` of an OpenCV camera/projector pose (4, 4) m: ``T_world_cam @ diag(-1, -1, 1, 1)``.
+
+    Use it as the ``to_world`` of any Mitsuba sensor or ``projector`` emitter placed with an OpenCV pose.
+    """
+    import mitsuba as mi
+
+    return mi.ScalarTransform4f((np.asarray(T_world_cam, dtype=np.float64) @ _CV_TO_MI).tolist())
+
+
 def sensor_dict(camera: RenderCamera, spp: int = 1, render_scale: float = 1.0, sampler: str = "ldsampler"
                 ) -> dict[str, Any]:
     """The Mitsuba ``perspective`` sensor dict of an OpenCV camera (see the module docstring for the conversion).
@@ -54,7 +64,6 @@ def sensor_dict(camera: RenderCamera, spp: int = 1, render_scale: float = 1.0, s
     The film is ``round(W * render_scale) x round(H * render_scale)``; fov and principal point are relative, so
     they are unchanged by the scale. Needs Mitsuba loaded (:func:`sim.render.mitsuba_env.load_mitsuba`).
     """
-    import mitsuba as mi
 
     K, W, H = camera.K, camera.width, camera.height
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -70,7 +79,7 @@ def sensor_dict(camera: RenderCamera, spp: int = 1, render_scale: float = 1.0, s
         "principal_point_offset_y": float((H / 2.0 - cy) / H),
         "near_clip": 0.005,
         "far_clip": 100.0,
-        "to_world": mi.ScalarTransform4f((camera.T_world_cam @ _CV_TO_MI).tolist()),
+        "to_world": cv_to_mitsuba(camera.T_world_cam),
         "film": {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "rgb", "rfilter": {"type": "box"}},
         "sampler": {"type": sampler, "sample_count": int(spp)},
     }
