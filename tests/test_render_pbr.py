@@ -145,3 +145,19 @@ def test_extra_emitters_render_a_projected_dot_pattern_in_a_dark_room():
     assert grey.mean() > 2 and np.abs(np.diff(grey, axis=1)).mean() > 2  # bright, high-frequency dots
     with pytest.raises(Exception, match="clashes"):
         r.render([cam], extra_emitters={"env": projector})
+
+
+def test_capture_command_renders_pbr_rgb(tmp_path, capsys, monkeypatch):
+    import json
+
+    from torm.capture import load_capture
+    from torm.cli import main
+
+    monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "cap"
+    assert main(["capture", "--scenario", "rw1", "--views", "2", "--width", "64", "--height", "36", "--robot",
+                 "none", "--renderer", "pbr", "--spp", "2", "--no-occlusion", "--out", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["views"] == 2
+    cap = load_capture(out)
+    assert cap.metadata["renderer"].startswith("pbr mitsuba") and "spp 2" in cap.metadata["renderer"]
+    assert cap.views[0].rgb.shape == (36, 64, 3) and cap.masks().max() == 1
