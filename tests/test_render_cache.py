@@ -15,8 +15,10 @@ from tests.render_helpers import camera, tiny_world
 
 FAST = PbrSettings(spp=2, max_depth=4, denoise="none")
 # a different valid value for every settings field
-CHANGED = {"spp": 3, "max_depth": 5, "rr_depth": 2, "denoise": "bilateral", "denoise_strength": 7.0,
-           "render_scale": 0.5, "variant": "scalar_rgb", "threads": 1, "exposure": 2.0, "cache": False}
+CHANGED = {"spp": 3, "max_depth": 5, "rr_depth": 2, "integrator": "path", "sampler": "independent",
+           "denoise": "bilateral",
+           "denoise_strength": 7.0, "render_scale": 0.5, "variant": "scalar_rgb", "threads": 1, "exposure": 2.0,
+           "cache": False}
 
 
 def test_every_pixel_shaping_setting_changes_the_key():
