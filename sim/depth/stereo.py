@@ -134,11 +134,13 @@ class StereoDepth:
     def _projector(self, T_world_proj: np.ndarray) -> dict[str, Any]:
         import mitsuba as mi
 
+        from sim.render import cv_to_mitsuba
+
         s = self.config.sensor
         hfov = 2 * math.degrees(math.atan(0.5 * self._pattern.shape[1] / (s.focal_px * self.config.pattern_scale)))
         return {"type": "projector", "fov": hfov, "scale": float(self.config.projector_scale),
                 "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(self._pattern), "raw": True},
-                "to_world": mi.ScalarTransform4f((T_world_proj @ np.diag([-1.0, -1.0, 1.0, 1.0])).tolist())}
+                "to_world": cv_to_mitsuba(T_world_proj)}
 
     # ------------------------------------------------------------------------------------------- images
     def ir_pair(self, world: Any, T_world_col: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
