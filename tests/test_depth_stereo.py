@@ -1,7 +1,7 @@
 """Stereo depth model (sim/depth/stereo.py): SGBM geometry, a bare table plane, and glass outcomes.
 
 Rendering is kept small for CI: the D455 at half its depth-stream resolution (424 x 240, 64 disparities),
-8 samples per pixel.
+16 samples per pixel.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from torm.geometry import look_at_cv
 
 def _small() -> StereoDepth:
     sensor = D455Sensor(depth_width=424, depth_height=240)
-    return StereoDepth(StereoDepthConfig(sensor=sensor, sgbm=SGBMSettings(num_disparities=64), spp=8))
+    return StereoDepth(StereoDepthConfig(sensor=sensor, sgbm=SGBMSettings(num_disparities=64), spp=16))
 
 
 def test_sgbm_settings_scale_penalties_per_opencv():

@@ -38,7 +38,8 @@ class StereoDepthConfig:
     Attributes:
         sensor: the D455 depth imager (baseline, FOV, resolution, range).
         sgbm: the matcher's settings.
-        spp: path-tracing samples per pixel of each IR image.
+        spp: path-tracing samples per pixel of each IR image (Mitsuba's low-discrepancy sampler rounds up to a
+            square power of two: 4, 16, 64...).
         max_depth: light bounces (solid glass needs >= 8 for the way through and back).
         dot_density: probability that a texel of the projector pattern is a dot.
         pattern_scale: projector pattern resolution relative to the IR image.
@@ -52,7 +53,7 @@ class StereoDepthConfig:
 
     sensor: D455Sensor = field(default_factory=D455Sensor)
     sgbm: SGBMSettings = field(default_factory=SGBMSettings)
-    spp: int = 32
+    spp: int = 16
     max_depth: int = 8
     dot_density: float = 0.02
     pattern_scale: float = 2.0
@@ -67,6 +68,10 @@ class StereoDepthConfig:
     def __post_init__(self) -> None:
         if self.spp < 1 or self.max_depth < 1:
             raise ConfigError("stereo.spp and stereo.max_depth must be >= 1")
+        side = math.isqrt(self.spp)
+        if side * side != self.spp or side & (side - 1):
+            raise ConfigError(f"stereo.spp must be a square power of two (4, 16, 64, 256) for the low-discrepancy "
+                              f"sampler, got {self.spp}")
         if not 0 < self.dot_density < 1 or not self.pattern_scale > 0 or self.pattern_blur_px < 0:
             raise ConfigError("stereo: dot_density in (0, 1), pattern_scale > 0 and pattern_blur_px >= 0 are required")
         if not (self.projector_scale > 0 and self.ambient_scale >= 0 and self.exposure > 0):
@@ -127,7 +132,7 @@ class StereoDepth:
 
             self._renderer = MitsubaRenderer(world, PbrSettings(spp=self.config.spp, max_depth=self.config.max_depth,
                                                                 denoise="none", exposure=self.config.exposure,
-                                                                cache=False))
+                                                                sampler="ldsampler", cache=False))
             self._world = world
         return self._renderer
 
@@ -194,5 +199,5 @@ class StereoDepth:
         d = asdict(self.config)
         d["sensor"] = self.config.sensor.record()
         d["sgbm"]["P1_opencv"], d["sgbm"]["P2_opencv"] = self.config.sgbm.P1, self.config.sgbm.P2
-        d["renderer"] = "mitsuba 3 (sim.render.MitsubaRenderer)"
+        d["renderer"] = "mitsuba 3 (sim.render.MitsubaRenderer), ldsampler"
         return {"name": self.name, **d}
