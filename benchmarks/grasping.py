@@ -166,8 +166,13 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
 
 def write_markdown(result: dict[str, Any], path: Path) -> None:
     order = ("depth", "depth_fusion", "oracle", "torm", "torm_noisy")
-    cols = [c for c in order if c in result["totals"]]
-    cols += sorted(c for c in result["totals"] if c not in order)
+    models = ("", "ideal", "statistical", "stereo")
+
+    def rank(c: str) -> tuple[int, int, str]:
+        m, _, dm = c.partition("@")
+        return (order.index(m) if m in order else len(order), models.index(dm) if dm in models else len(models), c)
+
+    cols = sorted(result["totals"], key=rank)
     names = {c: column_name(c) for c in cols}
     names["depth"] = "Depth baseline (single view, symmetric completion; depth model `ideal`)"
     names["torm_noisy"] = f"TORM (seg. errors: {result['config'].get('noisy_preset', 'paper')})"
