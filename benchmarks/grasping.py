@@ -174,7 +174,6 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
 
     cols = sorted(result["totals"], key=rank)
     names = {c: column_name(c) for c in cols}
-    names["depth"] = "Depth baseline (single view, symmetric completion; depth model `ideal`)"
     names["torm_noisy"] = f"TORM (seg. errors: {result['config'].get('noisy_preset', 'paper')})"
     L = [f"# Grasping success in simulation, suite `{result['config']['suite']}` (shape of the paper's Table III)", "",
          f"{result['config']['trials']} trial(s) per scenario, scene layouts seeded per (suite, scenario, trial), "
