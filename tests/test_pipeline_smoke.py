@@ -38,7 +38,7 @@ def test_bad_trial_configs_name_the_problem():
     from torm import config as cfgmod
     from torm.pipeline import TrialConfig
 
-    with pytest.raises(ConfigError, match=r"'magic' is not one of \['torm', 'depth', 'oracle'\]"):
+    with pytest.raises(ConfigError, match=r"'magic' is not one of \['torm', 'depth', 'depth_fusion', 'oracle'\]"):
         cfgmod.from_dict(TrialConfig, {}, ["method=magic"])
     with pytest.raises(UnknownNameError, match="valid choices: grounded_sam, gt, noisy"):
         cfgmod.from_dict(TrialConfig, {}, ["segmentation.segmenter=sam3"])
