@@ -132,7 +132,8 @@ class StereoDepth:
 
             self._renderer = MitsubaRenderer(world, PbrSettings(spp=self.config.spp, max_depth=self.config.max_depth,
                                                                 denoise="none", exposure=self.config.exposure,
-                                                                sampler="ldsampler", cache=False))
+                                                                sampler="ldsampler", integrator="glass_path",
+                                                                cache=False))
             self._world = world
         return self._renderer
 
@@ -199,5 +200,7 @@ class StereoDepth:
         d = asdict(self.config)
         d["sensor"] = self.config.sensor.record()
         d["sgbm"]["P1_opencv"], d["sgbm"]["P2_opencv"] = self.config.sgbm.P1, self.config.sgbm.P2
-        d["renderer"] = "mitsuba 3 (sim.render.MitsubaRenderer), ldsampler"
+        d["renderer"] = ("mitsuba 3 (sim.render.MitsubaRenderer), ldsampler, glass_path integrator: camera rays "
+                         "refract through glass; projector light reaches what lies behind glass Fresnel-attenuated "
+                         "but unbent (a path tracer cannot carry a point projector's light through refraction)")
         return {"name": self.name, **d}
