@@ -15,7 +15,6 @@ from torm.env.pick_env import TormPickEnv
 from torm.errors import TormError
 from torm.execution.errors import PhysicsError
 
-
 gym.register_envs(torm)  # `import torm` registered them; this documents the dependency (Gymnasium-Robotics style)
 
 

@@ -37,8 +37,9 @@ The (lower, release) part of the paper's test is not required in this env.
 Reward: ``success_reward`` (1.0) on the success step, 0 otherwise; with ``reward_shaping`` a dense term is
 added every step: ``w_reach * (1 - tanh(10 d))`` (d = TCP-to-object distance, m) + ``w_grasp`` when both pads
 touch the object + ``w_lift * clip(lift / lift_height, 0, 1)`` while held (+ ``w_translate`` x the
-translation fraction in ``lift_translate`` mode). Termination: success or physics error. Truncation: ``gymnasium.make`` wraps the env in a
-``TimeLimit`` of :data:`torm.env.PICK_MAX_EPISODE_STEPS` (200) steps (the registered spec's ``max_episode_steps``; change it with
+translation fraction in ``lift_translate`` mode). Termination: success or physics error.
+Truncation: ``gymnasium.make`` wraps the env in a ``TimeLimit`` of :data:`torm.env.PICK_MAX_EPISODE_STEPS`
+(200) steps (the registered spec's ``max_episode_steps``; change it with
 ``gymnasium.make(id, max_episode_steps=N)``); a directly constructed env truncates only when its config's
 ``max_episode_steps`` is set.
 
