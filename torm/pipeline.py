@@ -229,6 +229,7 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     t = time.perf_counter()
     capture = backend.capture(config.capture.n_views)
     timings["capture"] = timings.get("capture", 0.0) + time.perf_counter() - t
+    log.info("capture: %d views in %.1f s", len(capture.views), time.perf_counter() - t)
     gt = backend.ground_truth
     n_points = config.reconstruction.points_per_object
     t = time.perf_counter()
@@ -251,6 +252,7 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
         per = Perception(clouds, meshes, {})
         timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
     per.info["capture"] = capture
+    log.info("perception (%s): %d objects in %.1f s", config.method, len(per.point_clouds), time.perf_counter() - t)
     return per
 
 
@@ -295,7 +297,23 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: str | Non
     result["n_success"] = sum(o == Outcome.SUCCESS.value for o in outcomes)
     result["success_rate"] = result["n_success"] / len(outcomes) if outcomes else 0.0
     timings["total"] = time.perf_counter() - t_trial
-    return result
+    log.info("trial %s seed %d (%s): %d/%d objects picked in %.1f s", config.scenario, config.seed, config.method,
+             result["n_success"], result["n_objects"], timings["total"])
+    # The headline first, the resolved config last (ARCHITECTURE.md's trial record, reading order for people).
+    resolved = result.pop("config")
+    return {"summary": trial_summary(result), **result, "config": resolved}
+
+
+def trial_summary(result: dict[str, Any]) -> dict[str, Any]:
+    """The headline of a trial record: scenario, method, k/n objects picked, the outcome per object, total time (s)."""
+    objs = result.get("objects") or []
+    return {
+        "scenario": result.get("scenario"), "seed": result.get("seed"), "method": result.get("method"),
+        "success": f"{result.get('n_success', 0)}/{result.get('n_objects', len(objs))}",
+        "outcomes": {f"{o['object_id']}:{o['name']}": o["outcome"] for o in objs},
+        "failure": result.get("failure"),
+        "total_s": (result.get("timings") or {}).get("total"),
+    }
 
 
 def _attach_recorder(recorder: Any, backend: Any) -> None:
@@ -334,6 +352,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     t = time.perf_counter()
     grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
     timings["grasp_planning"] = time.perf_counter() - t
+    log.info("grasp planning: %d candidates for %d objects in %.2f s", sum(len(g) for g in grasps), len(grasps),
+             timings["grasp_planning"])
     if recorder is not None:
         recorder.perception(per.info["capture"], per.meshes or [None] * len(grasps), per.point_clouds, grasps)
     by_label = {c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)}
@@ -383,6 +403,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         entry = _obj(label, names, res.outcome, res.message)
         entry["pick"] = res.as_dict()
         done[label] = entry
+        log.info("pick %d/%d (%s): %s in %.1f s", n_pick + 1, len(order), entry["name"], res.outcome.value,
+                 time.perf_counter() - t)
         if res.outcome is Outcome.PHYSICS:
             aborted = res.message
             record["failure"] = Outcome.PHYSICS.value
@@ -446,4 +468,4 @@ def trial_succeeded(record: dict[str, Any]) -> bool:
 
 __all__ = ["DEPTH_MODELS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings", "SegmentationSettings", "TormError",
            "TrialConfig", "WorldSettings", "make_backend", "perceive", "run_trial", "trial_context", "trial_succeeded",
-           "versions"]
+           "trial_summary", "versions"]
