@@ -31,7 +31,19 @@ def _leaf_parsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
 
 
 def _examples(text: str) -> list[list[str]]:
-    return [shlex.split(line.strip())[1:] for line in text.splitlines() if line.startswith("    torm ")]
+    """Example command lines of a help text ("    torm ..." lines, backslash continuations joined)."""
+    out, current = [], None
+    for line in text.splitlines():
+        if current is not None:
+            current += " " + line.strip()
+        elif line.startswith("    torm "):
+            current = line.strip()
+        if current is not None and not current.endswith("\\"):
+            out.append(shlex.split(current)[1:])
+            current = None
+        elif current is not None:
+            current = current[:-1]
+    return out
 
 
 def test_every_command_has_plain_text_help_with_examples_that_parse():

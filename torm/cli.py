@@ -23,7 +23,6 @@ log = logging.getLogger("torm")
 
 def build_parser() -> argparse.ArgumentParser:
     import torm.commands as commands
-
     from torm import __version__
 
     parser = argparse.ArgumentParser(

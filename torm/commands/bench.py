@@ -19,13 +19,14 @@ import argparse
 import signal
 from typing import Any
 
-from torm.commands._common import add_parser, add_robot, print_json
+from torm.commands._common import add_parser, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from torm.bench.spec import DEFAULT_TRIAL_FN, ENGINES, METHODS, RECORD_MODES
 
-    p = add_parser(subparsers, "bench", __doc__, help="run the closed-loop benchmark grid into a run folder (resumable)")
+    p = add_parser(subparsers, "bench", __doc__,
+                   help="run the closed-loop benchmark grid into a run folder (resumable)")
     p.add_argument("--suite", default="rw", help="scenario suite (rw, syn; default rw)")
     p.add_argument("--scenario", action="append", default=[], metavar="NAME",
                    help="only these scenarios of the suite (repeatable or comma-separated; default all)")

@@ -1,7 +1,7 @@
 """``torm calibrate``: calibrations for the real robot.
 
-- ``torm calibrate hand-eye``: eye-in-hand calibration of the wrist camera from ChArUco board images and the robot pose of each
-  image. Writes ``T_flange_cam`` (4x4, m, OpenCV camera axes) to ``--out`` and prints JSON with the
+- ``torm calibrate hand-eye``: eye-in-hand calibration of the wrist camera from ChArUco board images and
+  the robot pose of each image. Writes ``T_flange_cam`` (4x4, m, OpenCV camera axes) to ``--out`` and prints JSON with the
   residuals (spread of the board's base-frame pose over the images: translation mm, rotation deg).
 
   ``--poses`` (YAML/JSON): ``poses: [{image: 000.png, q: [6 joint values, rad]}, ...]`` or with
@@ -11,7 +11,8 @@
 
 Example::
 
-    torm calibrate hand-eye --images calib/images --poses calib/poses.yaml --intrinsics calib/d455.yaml --board 7x5 --square 0.03 --marker 0.022 --out hand_eye.yaml
+    torm calibrate hand-eye --images calib/images --poses calib/poses.yaml --intrinsics calib/d455.yaml \\
+        --board 7x5 --square 0.03 --marker 0.022 --out hand_eye.yaml
 """
 
 from __future__ import annotations

@@ -21,7 +21,8 @@ from torm.commands._common import add_overrides, add_parser, add_record, add_rob
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = add_parser(subparsers, "capture", __doc__, help="render a simulated multi-view capture of a scenario to a folder")
+    p = add_parser(subparsers, "capture", __doc__,
+                   help="render a simulated multi-view capture of a scenario to a folder")
     p.add_argument("--scenario", required=True, help="scenario name (see `torm scenes list`)")
     p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
     p.add_argument("--views", type=int, default=None, help="number of views (default: the rig config's, 50)")

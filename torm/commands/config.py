@@ -138,7 +138,8 @@ def run_show(args: argparse.Namespace) -> int:
         instance = _unvalidated_defaults(cls)
     if args.keys:
         for key, tp, default in flat_keys(cls, instance):
-            print(f"{key}: {tp} = {yaml.safe_dump(default, default_flow_style=True).strip().removesuffix('...').strip()}")
+            text = yaml.safe_dump(default, default_flow_style=True).strip().removesuffix("...").strip()
+            print(f"{key}: {tp} = {text}")
     else:
         print(f"# {args.name}: {CONFIGS.get(args.name, ('', 'torm segment'))[1]}")
         print(yaml.safe_dump(cfgmod.to_dict(instance), sort_keys=False).rstrip())

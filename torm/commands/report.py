@@ -18,7 +18,8 @@ from torm.commands._common import add_parser, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = add_parser(subparsers, "report", __doc__, help="Markdown/HTML report with tables and plots of benchmark run folder(s)")
+    p = add_parser(subparsers, "report", __doc__,
+                   help="Markdown/HTML report with tables and plots of benchmark run folder(s)")
     p.add_argument("runs", nargs="+", metavar="RUN", help="run folder (written by torm bench); a second one compares")
     p.add_argument("--out", default=None, help="output folder (default: the first run folder)")
     p.set_defaults(func=run)

@@ -4,7 +4,8 @@ Examples::
 
     torm segment runs/rw3_s0 --segmenter noisy --preset paper --seed 0 --out runs/rw3_s0_noisy
     torm segment runs/rw3_s0 --segmenter noisy --set overrides.p_missing_view=0.2 --out runs/rw3_s0_miss
-    torm segment runs/rw3_s0 --segmenter grounded_sam --config models/grounded_sam.yaml --prompt "clear glass. transparent object." --out runs/rw3_s0_gsam
+    torm segment runs/rw3_s0 --segmenter grounded_sam --config models/grounded_sam.yaml \\
+        --prompt "clear glass. transparent object." --out runs/rw3_s0_gsam
     torm segment runs/rw3_s0 --segmenter gt --check-views drop
 
 The output folder (default ``CAPTURE_DIR_<segmenter>``) is a full capture (``transforms.json``, images,
