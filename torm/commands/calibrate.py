@@ -1,8 +1,8 @@
 """``torm calibrate``: calibrations for the real robot.
 
 - ``torm calibrate hand-eye``: eye-in-hand calibration of the wrist camera from ChArUco board images and
-  the robot pose of each image. Writes ``T_flange_cam`` (4x4, m, OpenCV camera axes) to ``--out`` and prints JSON with the
-  residuals (spread of the board's base-frame pose over the images: translation mm, rotation deg).
+  the robot pose of each image. Writes ``T_flange_cam`` (4x4, m, OpenCV camera axes) to ``--out`` and prints
+  JSON with the residuals (spread of the board's base-frame pose over the images: translation mm, rotation deg).
 
   ``--poses`` (YAML/JSON): ``poses: [{image: 000.png, q: [6 joint values, rad]}, ...]`` or with
   ``T_base_flange: 4x4`` instead of ``q``; joint values use the robot config's flange site for FK.
