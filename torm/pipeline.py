@@ -16,6 +16,7 @@ import logging
 import platform
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -256,13 +257,14 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     return per
 
 
-def run_trial(config: TrialConfig, backend: Any | None = None, record: str | None = None) -> dict[str, Any]:
+def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = None) -> dict[str, Any]:
     """Run one closed-loop trial and return its result record (see the module docstring).
 
     Args:
         config: the trial definition.
         backend: an existing backend to run on (default: built from ``config``; closed at the end).
-        record: path of a rerun ``.rrd`` file to stream images, masks, meshes, grasps and motion into.
+        record: path of a rerun ``.rrd`` file to stream the scene, images, masks, meshes, grasps, motion and the
+            outcome into, or a :class:`torm.viz.TrialRecorder` to use.
     """
     configure_threads()
     t_trial = time.perf_counter()
@@ -283,12 +285,13 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: str | Non
     if record:
         from torm.viz import TrialRecorder
 
-        recorder = TrialRecorder(record)
+        recorder = TrialRecorder(record) if isinstance(record, (str, Path)) else record
         _attach_recorder(recorder, backend)
     try:
         _run(config, backend, rng, timings, result, gt_ids, recorder)
     finally:
         if recorder is not None:
+            recorder.finish(result)
             recorder.close()
         if own_backend:
             backend.close()
@@ -317,15 +320,15 @@ def trial_summary(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def _attach_recorder(recorder: Any, backend: Any) -> None:
-    """Log the motion from the backend's step callback (simulation only)."""
-    if not hasattr(backend, "add_step_callback") or backend.ground_truth is None:
+    """Log the scene once and the motion from the backend's step callback (simulation only)."""
+    world = getattr(backend, "world", None)
+    if not hasattr(backend, "add_step_callback") or world is None:
         return
-    gt = backend.ground_truth
+    recorder.scene(world)
 
     def on_step(t: float) -> None:
         if recorder.due(t):
-            poses = {k: T[:3, 3] for k, T in gt.object_poses().items()}
-            recorder.step(t, backend.arm.state().T_world_tcp, poses)
+            recorder.step(t, backend.arm.state().T_world_tcp)
 
     backend.add_step_callback(on_step)
 
