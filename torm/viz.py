@@ -223,6 +223,7 @@ class TrialRecorder:
         self._next = -np.inf
         self._tcp: list[np.ndarray] = []
         self._bodies: list[tuple[int, str]] = []
+        self._moving: list[tuple[int, str]] = []
         self._world: Any = None
         self.rec: Any = None
         try:
@@ -279,11 +280,13 @@ class TrialRecorder:
             log_mesh(self.rec, f"{SCENE_ROOT}/{name}/mesh", o.mesh, color=(int(c[0]), int(c[1]), int(c[2]), 110))
         self._bodies = sorted(bodies.items())
         self._world = world
-        self._log_bodies(static=True)
+        self._log_bodies(static=True, bodies=self._bodies)
+        # bodies welded to the world (the robot's base) never move: only the others are logged per step
+        self._moving = [(b, n) for b, n in self._bodies if int(model.body_weldid[b]) != 0]
 
-    def _log_bodies(self, static: bool = False) -> None:
+    def _log_bodies(self, static: bool = False, bodies: list[tuple[int, str]] | None = None) -> None:
         d = self._world.data
-        for b, name in self._bodies:
+        for b, name in self._moving if bodies is None else bodies:
             self.rec.log(f"{SCENE_ROOT}/{name}", rr.Transform3D(translation=d.xpos[b], mat3x3=d.xmat[b].reshape(3, 3)),
                          static=static)
 
@@ -338,5 +341,8 @@ class TrialRecorder:
                      static=True)
 
     def close(self) -> None:
+        """Flush and close the file (writes the .rrd footer); idempotent."""
         if self.rec is not None:
             self._guard(self.rec.flush)
+            self._guard(self.rec.disconnect)
+            self.rec = None
