@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 
 from torm.bench import BenchConfig, run_benchmark
-from torm.bench.report import load_run, success_counts, throughput, write_report
+from torm.bench.report import load_run, success_counts, throughput, trial_counts, write_report
 from torm.bench.results import read_results
+from torm.bench.stats import difference_interval, wilson_interval
 from torm.errors import BenchmarkError
 
 TESTS_DIR = str(Path(__file__).resolve().parent)
@@ -49,6 +50,11 @@ def _table(md: str, first_header: str) -> list[list[str]]:
     return out
 
 
+def _kn(k: int, n: int) -> str:
+    lo, hi = wilson_interval(k, n)
+    return f"{k}/{n} ({100 * k / n:.0f}% [{100 * lo:.0f}-{100 * hi:.0f}])"
+
+
 def test_report_numbers_match_rows(run_dirs):
     summary = write_report([run_dirs / "a"])
     md = (run_dirs / "a" / "report.md").read_text()
@@ -58,20 +64,35 @@ def test_report_numbers_match_rows(run_dirs):
     assert set(by_sc) == {"rw1", "rw3", "rw4", "**all**"}
     header = next(x for x in md.splitlines() if x.startswith("| Scenario |"))
     cols = [c.strip() for c in header.strip("|").split("|")]
-    assert cols == ["Scenario", "OCC", "Objects", "torm success", "depth success"]
+    assert cols == ["Scenario", "OCC", "Objects", "torm trials", "torm objects", "depth trials", "depth objects"]
     for sc in ("rw1", "rw3", "rw4"):
         for m in ("torm", "depth"):
             sel = [r for r in rows if r["scenario"] == sc and r["method"] == m]
             k = sum(o["outcome"] == "success" for r in sel for o in r["objects"])
             n = sum(len(r["objects"]) for r in sel)
-            assert by_sc[sc][cols.index(f"{m} success")] == f"{k}/{n} ({100 * k / n:.0f}%)"
+            assert by_sc[sc][cols.index(f"{m} objects")] == _kn(k, n)
+            # the paper's unit: a trial counts when every object of the scene was picked
+            kt = sum(r["status"] == "ok" and all(o["outcome"] == "success" for o in r["objects"]) for r in sel)
+            assert by_sc[sc][cols.index(f"{m} trials")] == _kn(kt, len(sel))
     # rw3 torm: one crashed trial counts its two objects as failed
     assert sum(len(r["objects"]) for r in rows if r["scenario"] == "rw3" and r["method"] == "torm") == 6
     assert by_sc["rw1"][1] == "10%"  # OCC from perception.occlusion_ratio of the rows
     assert by_sc["rw4"][2].startswith("3 (ball, cube, toothpick_box)")
     k, n = success_counts(rows, None, "torm")
-    assert by_sc["**all**"][cols.index("torm success")] == f"**{k}/{n} ({100 * k / n:.0f}%)**"
+    assert by_sc["**all**"][cols.index("torm objects")] == f"**{_kn(k, n)}**"
     assert summary["runs"][0]["success"]["torm"] == {"k": k, "n": n}
+    kt, nt = trial_counts(rows, None, "torm")
+    assert summary["runs"][0]["trial_success"]["torm"] == {"k": kt, "n": nt} and nt == 9
+    # per-object table and the CSV export hold the same numbers
+    per_obj = {(r[0], r[1]): r[2:] for r in _table(md.split("### Per object")[1], "Scenario")}
+    sel = [r for r in rows if r["scenario"] == "rw3" and r["method"] == "depth"]
+    k_cyl = sum(o["outcome"] == "success" for r in sel for o in r["objects"] if o["name"] == "cylinder")
+    assert per_obj[("rw3", "cylinder")][1] == _kn(k_cyl, len(sel))
+    csv_lines = (run_dirs / "a" / "table3.csv").read_text().splitlines()
+    assert csv_lines[0] == "scenario,method,unit,k,n,rate,wilson95_low,wilson95_high"
+    assert f"all,torm,trials,{kt},{nt}," in "\n".join(csv_lines)
+    assert any(line.startswith(f"rw3,cylinder,depth,{k_cyl},{len(sel)},")
+               for line in (run_dirs / "a" / "objects.csv").read_text().splitlines())
     # failure categories: one crashed trial per method (crash=rw3/2 hits both methods)
     fail = {r[0]: r[1:] for r in _table(md, "Trial failure")}
     assert fail == {"crashed": ["1", "1"]}
@@ -93,7 +114,7 @@ def test_report_numbers_match_rows(run_dirs):
     sess = throughput(load_run(run_dirs / "a"))
     assert len(sess) == 1 and sess[0]["trials"] == 18
     assert "trials/hour" in md
-    for name in ("success_by_scenario.png", "iou_distribution.png", "timing_stack.png"):
+    for name in ("success_by_scenario.png", "iou_vs_outcome.png", "timing_stack.png"):
         data = (run_dirs / "a" / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000
     html = (run_dirs / "a" / "report.html").read_text()
@@ -119,11 +140,15 @@ def test_report_cli_compares_two_runs_and_reports_corrupted_lines(run_dirs, tmp_
     assert "line 5 is corrupted" in md
     cmp_rows = _table(md, "Scenario | Method")
     total = [r for r in cmp_rows if r[0] == "**all**" and r[1] == "torm"][0]
-    ka, na = success_counts(read_results(run_dirs / "a" / "results.jsonl").rows, None, "torm")
-    kb, nb = success_counts(read_results(b / "results.jsonl").rows, None, "torm")
-    assert total[2:] == [f"{ka}/{na} ({100 * ka / na:.0f}%)", f"{kb}/{nb} ({100 * kb / nb:.0f}%)",
-                         f"{100 * kb / nb - 100 * ka / na:+.0f}"]
+    rows_a, rows_b = read_results(run_dirs / "a" / "results.jsonl").rows, read_results(b / "results.jsonl").rows
+    ka, na = success_counts(rows_a, None, "torm")
+    kb, nb = success_counts(rows_b, None, "torm")
+    d, lo, hi = difference_interval(kb, nb, ka, na)
+    assert total[5:] == [_kn(ka, na), _kn(kb, nb), f"{100 * d:+.0f} [{100 * lo:+.0f}, {100 * hi:+.0f}]"]
+    ta, tb = trial_counts(rows_a, None, "torm"), trial_counts(rows_b, None, "torm")
+    assert total[2:4] == [_kn(*ta), _kn(*tb)]
     assert (out / "a_success_by_scenario.png").exists() and (out / "b_timing_stack.png").exists()
+    assert (out / "a_table3.csv").exists() and (out / "b_objects.csv").exists()
     assert re.search(r"Throughput: A [\d.]+ trials/hour, B [\d.]+ trials/hour", md)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import torm.env  # noqa: F401  (registers the envs)
+import torm  # noqa: F401  (importing torm registers the envs)
 from torm.env.errors import InvalidActionError
 from torm.env.grasp_select_env import FEATURE_NAMES, TormGraspSelectEnv
 from torm.errors import ConfigError, UnknownNameError

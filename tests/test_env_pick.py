@@ -8,14 +8,19 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import torm.env  # noqa: F401  (registers the envs)
+import torm
+from torm.env.cameras import SCENE_FOVY_DEG, scene_pose
 from torm.env.errors import InvalidActionError
 from torm.env.pick_env import TormPickEnv
 from torm.errors import TormError
 from torm.execution.errors import PhysicsError
 
+gym.register_envs(torm)  # `import torm` registered them; this documents the dependency (Gymnasium-Robotics style)
+
 
 def test_registered_env_passes_the_gymnasium_checker():
+    assert gym.spec("torm/TormPick-v0").max_episode_steps == 200
+    assert gym.spec("torm/TormGraspSelect-v0").max_episode_steps == 1
     env = gym.make("torm/TormPick-v0", image_size=(64, 64), cameras=("overview", "wrist"), render_mode="rgb_array")
     try:
         check_env(env.unwrapped, skip_close_check=True)
@@ -35,7 +40,8 @@ def test_registered_env_passes_the_gymnasium_checker():
         assert abs(abs(obs["tcp_pose"][5]) - 1.0) < 1e-3
         assert info["layout_seed"] == 3
         assert env.action_space.shape == (7,)
-        assert np.allclose(env.action_space.high, [0.02, 0.02, 0.02, 0.1, 0.1, 0.1, 1.0])
+        assert np.allclose(env.action_space.high, 1.0) and np.allclose(env.action_space.low, -1.0)
+        assert np.allclose(env.unwrapped.action_scale, [0.02, 0.02, 0.02, 0.1, 0.1, 0.1, 1.0])
     finally:
         env.close()
 
@@ -55,8 +61,8 @@ def test_same_seed_same_layout_and_rollout():
     lo = np.array([-0.02] * 3 + [-0.1] * 3 + [-1.0])
     actions = (rng.uniform(-1, 1, (8, 7)) * -lo).astype(np.float32)
     actions[:4, 2] = -0.02  # go down towards the table so the rollout does something
-    a = TormPickEnv(cameras=("overview",), image_size=(32, 32), reward_shaping=True, privileged_state=True)
-    b = TormPickEnv(cameras=("overview",), image_size=(32, 32), reward_shaping=True, privileged_state=True)
+    kw = dict(cameras=("overview",), image_size=(32, 32), reward_shaping=True, privileged_state=True, action_mode="raw")
+    a, b = TormPickEnv(**kw), TormPickEnv(**kw)
     try:
         obs_a, rew_a = _rollout(a, 11, actions)
         obs_b, rew_b = _rollout(b, 11, actions)
@@ -95,7 +101,7 @@ def test_sync_vector_env_steps():
 
 
 def test_out_of_bounds_actions_are_rejected_with_the_bounds():
-    env = TormPickEnv(cameras=())
+    env = TormPickEnv(cameras=(), action_mode="raw", out_of_bounds="raise")
     env.reset(seed=0)
     try:
         with pytest.raises(InvalidActionError, match=r"outside \[-0.02, 0.02\].*low=\[") as exc:
@@ -105,7 +111,7 @@ def test_out_of_bounds_actions_are_rejected_with_the_bounds():
             env.step(np.array([0, 0, 0, 0, 0, 0, 1.5]))
         with pytest.raises(InvalidActionError, match="shape"):
             env.step(np.zeros(6))
-        with pytest.raises(InvalidActionError, match="outside"):
+        with pytest.raises(InvalidActionError, match="not finite"):
             env.step(np.array([np.nan, 0, 0, 0, 0, 0, 0]))
         obs, *_ = env.step(np.zeros(7, np.float64))  # float64 inside the bounds is fine
         assert np.isfinite(obs["tcp_pose"]).all()
@@ -113,8 +119,59 @@ def test_out_of_bounds_actions_are_rejected_with_the_bounds():
         env.close()
 
 
+def test_normalised_actions_map_to_the_physical_limits_and_clip():
+    env = TormPickEnv(cameras=())
+    try:
+        env.reset(seed=0)
+        T0 = env._T_target.copy()
+        _, _, _, _, info = env.step(np.array([1.0, -0.5, 0, 0, 0, 0, -1], np.float32))
+        assert not info["action_clipped"]
+        assert np.allclose(env._T_target[:3, 3] - T0[:3, 3], [0.02, -0.01, 0.0], atol=1e-9)  # max_pos_step 0.02 m
+        T1 = env._T_target.copy()
+        _, _, _, _, info = env.step(np.array([3.0, 0, 0, 0, 0, 0, -1], np.float32))  # clipped to +1
+        assert info["action_clipped"]
+        assert np.allclose(env._T_target[:3, 3] - T1[:3, 3], [0.02, 0.0, 0.0], atol=1e-9)
+        T2 = env._T_target.copy()
+        env.step(np.array([0, 0, 0, 0, 0, 1.0, -1], np.float32))  # yaw by max_rot_step = 0.1 rad
+        R = env._T_target[:3, :3] @ T2[:3, :3].T
+        assert np.isclose(np.arctan2(R[1, 0], R[0, 0]), 0.1, atol=1e-9)
+        with pytest.raises(InvalidActionError, match="not finite"):
+            env.step(np.array([np.inf, 0, 0, 0, 0, 0, 0]))
+    finally:
+        env.close()
+    strict = TormPickEnv(cameras=(), out_of_bounds="raise")
+    try:
+        strict.reset(seed=0)
+        with pytest.raises(InvalidActionError, match=r"outside \[-1, 1\].*normalised"):
+            strict.step(np.array([1.5, 0, 0, 0, 0, 0, 0], np.float32))
+    finally:
+        strict.close()
+
+
+def test_render_camera_shows_the_arm_and_the_workspace():
+    """Every robot geom at the home pose and every workspace corner project inside the render image."""
+    env = TormPickEnv(cameras=())
+    try:
+        env.reset(seed=0)
+        m, d = env.world.model, env.world.data
+        robot = d.geom_xpos[m.geom_group == 1]  # robot visual geoms (group 1), world frame (m)
+    finally:
+        env.close()
+    assert len(robot) > 5
+    T = scene_pose()
+    H, W = 240, 320
+    f = 0.5 * H / np.tan(np.radians(SCENE_FOVY_DEG) / 2)
+    pts = np.array([[x, y, z] for x in (0.33, 0.77) for y in (-0.22, 0.22) for z in (0.0, 0.2)], float)
+    pts = np.r_[robot, pts]
+    p_cam = (np.linalg.inv(T) @ np.c_[pts, np.ones(len(pts))].T)[:3].T
+    assert np.all(p_cam[:, 2] > 0.3)
+    u = f * p_cam[:, 0] / p_cam[:, 2] + W / 2
+    v = f * p_cam[:, 1] / p_cam[:, 2] + H / 2
+    assert np.all((u > 0) & (u < W) & (v > 0) & (v < H)), np.c_[u, v]
+
+
 def test_clipping_rejection_and_physics_error_flags(monkeypatch):
-    env = TormPickEnv(cameras=(), tcp_box=((0.15, -0.5, 0.30), (2.0, 0.5, 0.7)))
+    env = TormPickEnv(cameras=(), action_mode="raw", tcp_box=((0.15, -0.5, 0.30), (2.0, 0.5, 0.7)))
     try:
         env.reset(seed=0)
         _, _, _, _, info = env.step(np.array([0, 0, -0.02, 0, 0, 0, -1], np.float32))  # 0.35 -> 0.33: inside
@@ -190,7 +247,7 @@ def _scripted_pick(env: TormPickEnv, seed: int) -> tuple[list[float], list[dict]
 
 
 def test_scripted_pick_earns_the_success_reward_on_rw1():
-    env = TormPickEnv(scenario="rw1", cameras=(), privileged_state=True, reward_shaping=True)
+    env = TormPickEnv(scenario="rw1", cameras=(), privileged_state=True, reward_shaping=True, action_mode="raw")
     try:
         rewards, infos, n = _scripted_pick(env, seed=0)
         last = infos[-1]
@@ -203,12 +260,13 @@ def test_scripted_pick_earns_the_success_reward_on_rw1():
         lifts, rs = np.array(held).T
         assert np.all(np.diff(lifts[lifts > 0.01]) > 0) and np.all(np.diff(rs[lifts > 0.01]) > 0)
         # without shaping the reward is sparse: 0 until the success step
-        env2 = TormPickEnv(scenario="rw1", cameras=(), privileged_state=True)
+        env2 = TormPickEnv(scenario="rw1", cameras=(), privileged_state=True, action_mode="raw")
         rewards2, infos2, _ = _scripted_pick(env2, seed=0)
         env2.close()
         assert rewards2[-1] == 1.0 and set(rewards2[:-1]) == {0.0} and infos2[-1]["is_success"]
         # stage two: lift then translate 20 cm
-        env3 = TormPickEnv(scenario="rw1", cameras=(), privileged_state=True, success="lift_translate")
+        env3 = TormPickEnv(scenario="rw1", cameras=(), privileged_state=True, success="lift_translate",
+                           action_mode="raw")
         rewards3, infos3, _ = _scripted_pick(env3, seed=0)
         env3.close()
         assert infos3[-1]["is_success"] and infos3[-1]["translation_m"] >= 0.18 and rewards3[-1] == 1.0

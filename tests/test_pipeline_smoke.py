@@ -91,7 +91,25 @@ def test_trial_writes_a_rerun_recording(tmp_path):
     cfg = cfgmod.from_dict(TrialConfig, {}, [*SMOKE_OVERRIDES, "scenario=rw1", "method=oracle"])
     rec = run_trial(cfg, record=str(tmp_path / "trial.rrd"))
     assert rec["success_rate"] == 1.0
+    assert list(rec)[0] == "summary" and list(rec)[-1] == "config"  # headline first, resolved config last
+    assert rec["summary"]["success"] == "1/1" and rec["summary"]["outcomes"] == {"1:cylinder": "success"}
     assert (tmp_path / "trial.rrd").stat().st_size > 10_000  # capture, meshes, grasps and the motion
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, int] = {}
+    temporal: dict[str, int] = {}
+    for chunk in RrdReader(tmp_path / "trial.rrd").stream():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+        if not chunk.is_static:
+            temporal[chunk.entity_path] = temporal.get(chunk.entity_path, 0) + chunk.num_rows
+    assert "/outcome" in rows and "/world/reconstruction/object_0" in rows and "/world/grasps/object_0" in rows
+    assert temporal.get("/world/scene/object_1_cylinder", 0) > 50  # the true object moves with physics
+    robot = [e for e in rows if e.startswith("/world/scene/") and "/geom_" in e]
+    assert len(robot) > 5 and not any(e in temporal for e in robot)  # robot geometry logged once
+    assert temporal.get("/world/scene/link1", 0) > 50 and "/world/scene/base" not in temporal  # fixed base: once
+    # growing paths are logged once (static); per step only transforms and the TCP point
+    assert rows["/world/motion/tcp_path"] == 1 and "/world/motion/tcp_path" not in temporal
+    assert temporal["/world/motion/tcp"] > 50
 
 
 @pytest.mark.torm_smoke(scenario="syn11", seed=0, method="oracle", min_success=1.0)

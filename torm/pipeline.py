@@ -16,6 +16,7 @@ import logging
 import platform
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -286,6 +287,7 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     capture, cap_info = _capture(config, backend)
     cap_info["capture_s"] = time.perf_counter() - t
     timings["capture"] = timings.get("capture", 0.0) + cap_info["capture_s"]
+    log.info("capture: %d views in %.1f s", len(capture.views), cap_info["capture_s"])
     gt = backend.ground_truth
     n_points = config.reconstruction.points_per_object
     t = time.perf_counter()
@@ -312,16 +314,18 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
         timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
     per.info["capture"] = capture
     per.info["capture_info"] = cap_info
+    log.info("perception (%s): %d objects in %.1f s", config.method, len(per.point_clouds), time.perf_counter() - t)
     return per
 
 
-def run_trial(config: TrialConfig, backend: Any | None = None, record: str | None = None) -> dict[str, Any]:
+def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = None) -> dict[str, Any]:
     """Run one closed-loop trial and return its result record (see the module docstring).
 
     Args:
         config: the trial definition.
         backend: an existing backend to run on (default: built from ``config``; closed at the end).
-        record: path of a rerun ``.rrd`` file to stream images, masks, meshes, grasps and motion into.
+        record: path of a rerun ``.rrd`` file to stream the scene, images, masks, meshes, grasps, motion and the
+            outcome into, or a :class:`torm.viz.TrialRecorder` to use.
     """
     configure_threads()
     t_trial = time.perf_counter()
@@ -342,12 +346,13 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: str | Non
     if record:
         from torm.viz import TrialRecorder
 
-        recorder = TrialRecorder(record)
+        recorder = TrialRecorder(record) if isinstance(record, (str, Path)) else record
         _attach_recorder(recorder, backend)
     try:
         _run(config, backend, rng, timings, result, gt_ids, recorder)
     finally:
         if recorder is not None:
+            recorder.finish(result)
             recorder.close()
         if own_backend:
             backend.close()
@@ -356,19 +361,35 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: str | Non
     result["n_success"] = sum(o == Outcome.SUCCESS.value for o in outcomes)
     result["success_rate"] = result["n_success"] / len(outcomes) if outcomes else 0.0
     timings["total"] = time.perf_counter() - t_trial
-    return result
+    log.info("trial %s seed %d (%s): %d/%d objects picked in %.1f s", config.scenario, config.seed, config.method,
+             result["n_success"], result["n_objects"], timings["total"])
+    # The headline first, the resolved config last (ARCHITECTURE.md's trial record, reading order for people).
+    resolved = result.pop("config")
+    return {"summary": trial_summary(result), **result, "config": resolved}
+
+
+def trial_summary(result: dict[str, Any]) -> dict[str, Any]:
+    """The headline of a trial record: scenario, method, k/n objects picked, the outcome per object, total time (s)."""
+    objs = result.get("objects") or []
+    return {
+        "scenario": result.get("scenario"), "seed": result.get("seed"), "method": result.get("method"),
+        "success": f"{result.get('n_success', 0)}/{result.get('n_objects', len(objs))}",
+        "outcomes": {f"{o['object_id']}:{o['name']}": o["outcome"] for o in objs},
+        "failure": result.get("failure"),
+        "total_s": (result.get("timings") or {}).get("total"),
+    }
 
 
 def _attach_recorder(recorder: Any, backend: Any) -> None:
-    """Log the motion from the backend's step callback (simulation only)."""
-    if not hasattr(backend, "add_step_callback") or backend.ground_truth is None:
+    """Log the scene once and the motion from the backend's step callback (simulation only)."""
+    world = getattr(backend, "world", None)
+    if not hasattr(backend, "add_step_callback") or world is None:
         return
-    gt = backend.ground_truth
+    recorder.scene(world)
 
     def on_step(t: float) -> None:
         if recorder.due(t):
-            poses = {k: T[:3, 3] for k, T in gt.object_poses().items()}
-            recorder.step(t, backend.arm.state().T_world_tcp, poses)
+            recorder.step(t, backend.arm.state().T_world_tcp)
 
     backend.add_step_callback(on_step)
 
@@ -395,6 +416,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     t = time.perf_counter()
     grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
     timings["grasp_planning"] = time.perf_counter() - t
+    log.info("grasp planning: %d candidates for %d objects in %.2f s", sum(len(g) for g in grasps), len(grasps),
+             timings["grasp_planning"])
     if recorder is not None:
         recorder.perception(per.info["capture"], per.meshes or [None] * len(grasps), per.point_clouds, grasps)
     by_label = {c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)}
@@ -444,6 +467,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         entry = _obj(label, names, res.outcome, res.message)
         entry["pick"] = res.as_dict()
         done[label] = entry
+        log.info("pick %d/%d (%s): %s in %.1f s", n_pick + 1, len(order), entry["name"], res.outcome.value,
+                 time.perf_counter() - t)
         if res.outcome is Outcome.PHYSICS:
             aborted = res.message
             record["failure"] = Outcome.PHYSICS.value
@@ -508,4 +533,4 @@ def trial_succeeded(record: dict[str, Any]) -> bool:
 
 __all__ = ["DEPTH_MODELS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings", "SegmentationSettings", "TormError",
            "TrialConfig", "WorldSettings", "make_backend", "perceive", "run_trial", "trial_context", "trial_succeeded",
-           "versions"]
+           "trial_summary", "versions"]

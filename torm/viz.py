@@ -16,6 +16,7 @@ them into 3D.
 from __future__ import annotations
 
 import colorsys
+import logging
 from collections.abc import Sequence
 from typing import Any
 
@@ -23,6 +24,8 @@ import numpy as np
 import rerun as rr
 
 from torm.types import Capture, TriMesh
+
+log = logging.getLogger(__name__)
 
 
 def instance_colors(n: int) -> np.ndarray:
@@ -125,53 +128,221 @@ def log_grasps(rec: rr.RecordingStream, path: str, grasps: Sequence[Any], color:
         rec.log(path, rr.LineStrips3D(strips, colors=[tuple(color)] * len(strips), radii=0.0015), static=True)
 
 
-class TrialRecorder:
-    """Streams one closed-loop trial to an ``.rrd`` file: capture, meshes, grasps and the executed motion.
+#: Entity roots of a trial recording.
+SCENE_ROOT = "world/scene"  # robot links, table and true objects (body entities with time-varying transforms)
+RECON_ROOT = "world/reconstruction"
 
-    The motion is logged on the ``sim_time`` timeline (s) from a backend step callback, at most every
-    ``period`` seconds: the TCP position and every object's position (world frame, m).
+
+def trial_blueprint(n_image_views: int = 2) -> Any:
+    """The saved layout of a trial recording: a 3-D view of the scene, the outcome text, a few camera images.
+
+    The 3-D view shows the robot, the table, the true objects (moving with physics), the reconstructed meshes,
+    the grasps and the TCP path, plus the camera frustums; depth images are left out of it (their point clouds
+    would swamp the scene) and shown only in the 2-D views.
+    """
+    import rerun.blueprint as rrb
+
+    images = [rrb.Spatial2DView(origin=f"world/capture/view_{i:03d}", name=f"view {i}",
+                                contents=["+ $origin/rgb", "+ $origin/mask"]) for i in range(n_image_views)]
+    view3d = rrb.Spatial3DView(origin="world", name="scene", contents=[
+        "+ world/**", "- world/capture/**/depth", "- world/capture/**/sensor_depth", "- world/capture/**/rgb",
+        "- world/capture/**/mask", "- world/points/**"])
+    side = rrb.Vertical(rrb.TextDocumentView(origin="outcome", name="outcome"), *images)
+    return rrb.Blueprint(rrb.Horizontal(view3d, side, column_shares=[3, 1]), collapse_panels=True)
+
+
+def _geom_mesh(model: Any, g: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(verts (V, 3), faces (F, 3)) of MuJoCo geom ``g`` in its own frame (m); None for planes and unknown types."""
+    import mujoco
+    import trimesh
+
+    t, size = int(model.geom_type[g]), model.geom_size[g]
+    if t == mujoco.mjtGeom.mjGEOM_MESH:
+        m = int(model.geom_dataid[g])
+        v0, nv = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        f0, nf = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        return model.mesh_vert[v0:v0 + nv].copy(), model.mesh_face[f0:f0 + nf].copy()
+    if t == mujoco.mjtGeom.mjGEOM_BOX:
+        tm = trimesh.creation.box(extents=2 * size)
+    elif t == mujoco.mjtGeom.mjGEOM_SPHERE:
+        tm = trimesh.creation.icosphere(subdivisions=2, radius=size[0])
+    elif t == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        tm = trimesh.creation.cylinder(radius=size[0], height=2 * size[1], sections=24)
+    elif t == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        tm = trimesh.creation.capsule(radius=size[0], height=2 * size[1], count=[12, 12])
+    elif t == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+        tm = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+        tm.apply_scale(size)
+    else:
+        return None
+    return np.asarray(tm.vertices), np.asarray(tm.faces)
+
+
+def _quat_mat(q_wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = q_wxyz
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def outcome_markdown(record: dict[str, Any]) -> str:
+    """A trial record's headline and per-object outcomes as a Markdown document (the recording's text panel)."""
+    objs = record.get("objects") or []
+    ctx = record.get("context") or {}
+    lines = [f"## {record.get('scenario')} seed {record.get('seed')}: {record.get('method')}",
+             f"**{sum(o.get('outcome') == 'success' for o in objs)}/{len(objs)} objects picked**"
+             + (f" (trial failure: `{record['failure']}`)" if record.get("failure") else ""), "",
+             ", ".join(f"{k}: `{v}`" for k, v in ctx.items() if v is not None), "",
+             "| object | outcome | message |", "|---|---|---|"]
+    lines += [f"| {o.get('object_id')}: {o.get('name')} | {o.get('outcome')} | "
+              f"{str(o.get('message') or '').replace('|', '/')[:120]} |" for o in objs]
+    return "\n".join(lines) + "\n"
+
+
+class TrialRecorder:
+    """Streams one closed-loop trial to an ``.rrd`` file with a saved layout (:func:`trial_blueprint`).
+
+    What it logs (world frame, z up, m):
+
+    - :meth:`scene`: once, static: the robot's visual geometry and the true object meshes as children of one
+      entity per MuJoCo body (``world/scene/<body>``), the table;
+    - :meth:`step`: per motion sample on the ``sim_time`` timeline (s), at most every ``period`` s: only the
+      body transforms and the TCP position (nothing re-logged that does not change);
+    - :meth:`perception`: the capture (frustums of every view, images of 8), reconstructed meshes, the
+      point clouds (hidden in the 3-D view by default) and the planned grasps (best in cyan, others grey);
+    - :meth:`finish`: the TCP path once, as one static line strip, and the outcome per object as a text document.
+
+    ``best_effort=True`` (the benchmark runner) logs and swallows every recording error so that a recording
+    problem never fails a trial.
     """
 
-    def __init__(self, path: str, period: float = 0.05) -> None:
-        self.rec = rr.RecordingStream("torm_trial")
-        self.rec.save(path)
-        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    def __init__(self, path: str, period: float = 0.05, best_effort: bool = False,
+                 recording_id: str | None = None) -> None:
+        self.best_effort = best_effort
         self.period = period
         self._next = -np.inf
         self._tcp: list[np.ndarray] = []
+        self._bodies: list[tuple[int, str]] = []
+        self._moving: list[tuple[int, str]] = []
+        self._world: Any = None
+        self.rec: Any = None
+        try:
+            self.rec = rr.RecordingStream("torm_trial", recording_id=recording_id)
+            self.rec.save(path, default_blueprint=trial_blueprint())
+            self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        except Exception as exc:
+            if not best_effort:
+                raise
+            log.warning("rerun recording %s disabled: %s", path, exc)
+            self.rec = None
 
+    def _guard(self, fn: Any, *args: Any) -> None:
+        """Run a logging step; with ``best_effort`` an error is logged instead of raised."""
+        if self.rec is None:
+            return
+        try:
+            fn(*args)
+        except Exception as exc:
+            if not self.best_effort:
+                raise
+            log.warning("rerun recording: %s failed: %s", getattr(fn, "__name__", fn), exc)
+
+    # ------------------------------------------------------------------------------------------ scene
+    def scene(self, world: Any) -> None:
+        """Log the robot and the true objects of a :class:`sim.world.World` (static geometry, body frames)."""
+        self._guard(self._scene, world)
+
+    def _scene(self, world: Any) -> None:
+        model = world.model
+        object_bodies = {o.body_id: o for o in world.objects}
+        robot_group = 1  # sim.world.GROUP_ROBOT: the robot's visual geoms
+        bodies: dict[int, str] = {}
+        for g in range(model.ngeom):
+            b = int(model.geom_bodyid[g])
+            if b in object_bodies or b == 0 or int(model.geom_group[g]) != robot_group:
+                continue
+            mesh = _geom_mesh(model, g)
+            if mesh is None:
+                continue
+            name = model.body(b).name or f"body{b}"
+            bodies[b] = name
+            path = f"{SCENE_ROOT}/{name}/geom_{g}"
+            self.rec.log(path, rr.Transform3D(translation=model.geom_pos[g], mat3x3=_quat_mat(model.geom_quat[g])),
+                         static=True)
+            rgba = (np.clip(model.geom_rgba[g], 0, 1) * 255).astype(np.uint8)
+            self.rec.log(path, rr.Mesh3D(vertex_positions=mesh[0], triangle_indices=mesh[1],
+                                         albedo_factor=[int(c) for c in rgba]), static=True)
+        colors = instance_colors(max(object_bodies and max(o.instance_id for o in world.objects), 1))
+        for b, o in object_bodies.items():
+            name = f"object_{o.instance_id}_{o.name}"
+            bodies[b] = name
+            c = colors[o.instance_id]
+            log_mesh(self.rec, f"{SCENE_ROOT}/{name}/mesh", o.mesh, color=(int(c[0]), int(c[1]), int(c[2]), 110))
+        self._bodies = sorted(bodies.items())
+        self._world = world
+        self._log_bodies(static=True, bodies=self._bodies)
+        # bodies welded to the world (the robot's base) never move: only the others are logged per step
+        self._moving = [(b, n) for b, n in self._bodies if int(model.body_weldid[b]) != 0]
+
+    def _log_bodies(self, static: bool = False, bodies: list[tuple[int, str]] | None = None) -> None:
+        d = self._world.data
+        for b, name in self._moving if bodies is None else bodies:
+            self.rec.log(f"{SCENE_ROOT}/{name}", rr.Transform3D(translation=d.xpos[b], mat3x3=d.xmat[b].reshape(3, 3)),
+                         static=static)
+
+    # ------------------------------------------------------------------------------------------ perception
     def perception(self, capture: Capture, meshes: Sequence[Any], clouds: Sequence[Any],
                    grasps: Sequence[Sequence[Any]]) -> None:
         """Log the capture (8 views with images), reconstructed meshes, point clouds and planned grasps."""
+        self._guard(self._perception, capture, meshes, clouds, grasps)
+
+    def _perception(self, capture: Capture, meshes: Sequence[Any], clouds: Sequence[Any],
+                    grasps: Sequence[Sequence[Any]]) -> None:
         n = len(capture.views)
         log_capture(self.rec, capture, image_views=sorted({int(i) for i in np.linspace(0, n - 1, min(8, n))}))
         colors = instance_colors(max(len(clouds), 1))
         for k, (cloud, mesh) in enumerate(zip(clouds, meshes, strict=False)):
             c = tuple(int(v) for v in colors[k + 1])
             if mesh is not None:
-                log_mesh(self.rec, f"world/reconstruction/object_{k}", mesh, color=c)
+                log_mesh(self.rec, f"{RECON_ROOT}/object_{k}", mesh, color=c)
             log_points(self.rec, f"world/points/object_{k}", cloud.points_nx3, radius=0.0008)
         for k, gs in enumerate(grasps):
             log_grasps(self.rec, f"world/grasps/object_{k}", gs[:1])
             log_grasps(self.rec, f"world/grasps/object_{k}_alternatives", gs[1:], color=(120, 120, 120))
 
+    # ------------------------------------------------------------------------------------------ motion
     def due(self, t: float) -> bool:
         """Whether a motion sample at simulated time ``t`` (s) would be logged (rate limit ``period``)."""
-        return t >= self._next
+        return self.rec is not None and t >= self._next
 
-    def step(self, t: float, T_world_tcp: np.ndarray, object_positions: dict[int, np.ndarray]) -> None:
-        """Log the TCP and object positions at simulated time ``t`` (s), rate-limited to ``period``."""
-        if not self.due(t):
-            return
+    def step(self, t: float, T_world_tcp: np.ndarray) -> None:
+        """Log the body transforms and the TCP at simulated time ``t`` (s), rate-limited to ``period``."""
+        if self.due(t):
+            self._guard(self._step, t, T_world_tcp)
+
+    def _step(self, t: float, T_world_tcp: np.ndarray) -> None:
         self._next = t + self.period
         self.rec.set_time("sim_time", duration=float(t))
         self._tcp.append(T_world_tcp[:3, 3].copy())
         self.rec.log("world/motion/tcp", rr.Points3D([T_world_tcp[:3, 3]], radii=0.006, colors=[(255, 80, 0)]))
-        self.rec.log("world/motion/tcp_path", rr.LineStrips3D([np.asarray(self._tcp)], radii=0.001))
-        ids = sorted(object_positions)
-        if ids:
-            self.rec.log("world/motion/objects", rr.Points3D([object_positions[i] for i in ids], radii=0.01,
-                                                            labels=[str(i) for i in ids]))
+        if self._world is not None:
+            self._log_bodies()
+
+    # ------------------------------------------------------------------------------------------ end
+    def finish(self, record: dict[str, Any]) -> None:
+        """Log the TCP path (once) and the trial's outcome per object as the recording's text document."""
+        self._guard(self._finish, record)
+
+    def _finish(self, record: dict[str, Any]) -> None:
+        if self._tcp:
+            self.rec.log("world/motion/tcp_path", rr.LineStrips3D([np.asarray(self._tcp)], radii=0.001,
+                                                                 colors=[(255, 160, 0)]), static=True)
+        self.rec.log("outcome", rr.TextDocument(outcome_markdown(record), media_type=rr.MediaType.MARKDOWN),
+                     static=True)
 
     def close(self) -> None:
-        self.rec.flush()
+        """Flush and close the file (writes the .rrd footer); idempotent."""
+        if self.rec is not None:
+            self._guard(self.rec.flush)
+            self._guard(self.rec.disconnect)
+            self.rec = None

@@ -2,10 +2,12 @@
 
 Sections (each only when the rows hold the data):
 
-- the paper's Table III shape: scenario, OCC (mean ``occ``, ``perception.occlusion_ratio`` or ``occlusion_ratio``
-  of the rows), objects, and per method the object success count ``k/n`` and percentage (k = picked
-  successfully, n = objects attempted, summed over trials; a timed-out or crashed trial counts its
-  objects as failed);
+- the paper's Table III in its units: scenario, OCC (mean ``occ``, ``perception.occlusion_ratio`` or
+  ``occlusion_ratio`` of the rows), objects, and per method the *trial* success ``k/n`` (a trial succeeds
+  when every object of the scene was picked, the paper's unit for TORM) and the *object* success ``k/n``
+  (objects picked / attempted, summed over trials: the paper's unit for its single-object baselines), each
+  with a Wilson 95 % interval; a timed-out or crashed trial counts as failed with all its objects;
+- per-object success per scenario, object and method (the paper's GraspNet column counts each object);
 - reconstruction metrics per scenario and method: silhouette IoU (``perception.silhouette_iou_mean``),
   Chamfer distance (``perception.chamfer_mm_mean``, mm), objects found / present;
 - failure categories: per-object outcomes and trial-level failures per method;
@@ -13,8 +15,9 @@ Sections (each only when the rows hold the data):
 - throughput: trials per hour for every runner session (manifest timestamps);
 - plots (matplotlib, Agg): success by scenario and method, IoU distribution, timing stack.
 
-With two runs the report starts with a side-by-side comparison (success per scenario and method,
-difference in percentage points, mean trial time, throughput) followed by each run's own sections.
+With two runs the report starts with a side-by-side comparison (trial and object success per scenario and
+method, the difference B - A with Newcombe's 95 % interval, mean trial time, throughput) followed by each run's
+own sections. ``table3.csv`` and ``objects.csv`` hold the success tables for spreadsheets.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from torm.bench.results import RESULTS_NAME, read_manifest, read_results
+from torm.bench.rows import trial_failed
+from torm.bench.stats import difference_interval, wilson_interval
 from torm.errors import BenchmarkError
 
 log = logging.getLogger(__name__)
@@ -107,8 +112,41 @@ def success_counts(rows: list[dict[str, Any]], scenario: str | None = None,
     return sum(int(r.get("n_success") or 0) for r in sel), sum(int(r.get("n_objects") or 0) for r in sel)
 
 
+def trial_counts(rows: list[dict[str, Any]], scenario: str | None = None,
+                 method: str | None = None) -> tuple[int, int]:
+    """(trials with every object picked successfully, trials) over the matching rows (None: any)."""
+    sel = [r for r in rows
+           if (scenario is None or r["scenario"] == scenario) and (method is None or r["method"] == method)]
+    return sum(not trial_failed(r) for r in sel), len(sel)
+
+
+def object_counts(rows: list[dict[str, Any]], scenario: str, method: str) -> dict[str, tuple[int, int]]:
+    """Per object name of ``scenario``: (times picked successfully, times attempted) by ``method``."""
+    out: dict[str, list[int]] = {}
+    for r in rows:
+        if r["scenario"] != scenario or r["method"] != method:
+            continue
+        for o in r.get("objects", []):
+            kn = out.setdefault(str(o.get("name", "?")), [0, 0])
+            kn[0] += o.get("outcome") == "success"
+            kn[1] += 1
+    return {name: (k, n) for name, (k, n) in out.items()}
+
+
 def _kn(k: int, n: int) -> str:
-    return f"{k}/{n} ({100.0 * k / n:.0f}%)" if n else "–"
+    """``k/n (p% [lo-hi%])`` with the Wilson 95 % interval."""
+    if not n:
+        return "–"
+    lo, hi = wilson_interval(k, n)
+    return f"{k}/{n} ({100.0 * k / n:.0f}% [{100.0 * lo:.0f}-{100.0 * hi:.0f}])"
+
+
+def _diff(ka: int, na: int, kb: int, nb: int) -> str:
+    """B - A in percentage points with Newcombe's 95 % interval."""
+    if not (na and nb):
+        return "–"
+    d, lo, hi = difference_interval(kb, nb, ka, na)
+    return f"{100.0 * d:+.0f} [{100.0 * lo:+.0f}, {100.0 * hi:+.0f}]"
 
 
 def _fmt(v: float | None, digits: int = 2) -> str:
@@ -160,31 +198,67 @@ def overall_throughput(run: Run) -> float | None:
 Block = tuple  # ("h1"|"h2"|"h3"|"p", text) | ("table", headers, rows) | ("img", file, alt)
 
 
+def _objects_label(rows: list[dict[str, Any]], scenario: str) -> str:
+    sel = [r for r in rows if r["scenario"] == scenario]
+    names = next((", ".join(o.get("name", "?") for o in r.get("objects", [])) for r in sel if r.get("objects")), "")
+    n_obj = max(int(r.get("n_objects") or 0) for r in sel)
+    return f"{n_obj} ({names})" if names else str(n_obj)
+
+
 def table3(run: Run) -> list[Block]:
     rows, methods = run.rows, methods_of(run.rows, run.manifest)
     has_occ = any(occlusion(rows, sc) is not None for sc in scenarios_of(rows))
-    headers = ["Scenario"] + (["OCC"] if has_occ else []) + ["Objects"] + [f"{m} success" for m in methods]
+    headers = ["Scenario"] + (["OCC"] if has_occ else []) + ["Objects"]
+    headers += [h for m in methods for h in (f"{m} trials", f"{m} objects")]
     body = []
     for sc in scenarios_of(rows):
-        sel = [r for r in rows if r["scenario"] == sc]
-        names = next((", ".join(o.get("name", "?") for o in r.get("objects", [])) for r in sel if r.get("objects")), "")
-        n_obj = max(int(r.get("n_objects") or 0) for r in sel)
         line = [sc]
         if has_occ:
             occ = occlusion(rows, sc)
             line.append("–" if occ is None else f"{100 * occ:.0f}%")
-        line += [f"{n_obj} ({names})" if names else str(n_obj)]
-        line += [_kn(*success_counts(rows, sc, m)) for m in methods]
+        line.append(_objects_label(rows, sc))
+        for m in methods:
+            line += [_kn(*trial_counts(rows, sc, m)), _kn(*success_counts(rows, sc, m))]
         body.append(line)
-    total = ["**all**"] + ([""] if has_occ else []) + [""] + [f"**{_kn(*success_counts(rows, None, m))}**"
-                                                             for m in methods]
+    total = ["**all**"] + ([""] if has_occ else []) + [""]
+    for m in methods:
+        total += [f"**{_kn(*trial_counts(rows, None, m))}**", f"**{_kn(*success_counts(rows, None, m))}**"]
     body.append(total)
-    n_trials = {m: sum(r["method"] == m for r in rows) for m in methods}
-    return [("h2", "Grasp success (Table III shape)"),
-            ("p", "Objects picked successfully / objects attempted, summed over trials "
-                  f"(trials per method: {', '.join(f'{m} {n}' for m, n in n_trials.items())}). "
-                  "A trial that timed out or crashed counts all its objects as failed."),
-            ("table", headers, body)]
+    per_object = []
+    for sc in scenarios_of(rows):
+        counts = {m: object_counts(rows, sc, m) for m in methods}
+        names = list(dict.fromkeys(n for c in counts.values() for n in c))
+        per_object += [[sc, name] + [_kn(*counts[m].get(name, (0, 0))) for m in methods] for name in names]
+    return [("h2", "Grasp success (the paper's Table III units)"),
+            ("p", "*trials*: trials in which every object of the scene was picked / trials (the paper's unit for "
+                  "TORM, 10 trials per scenario); *objects*: objects picked / objects attempted over all trials "
+                  "(the paper's unit for its single-object baselines). k/n (rate [Wilson 95 % interval, %]). "
+                  "A trial that timed out or crashed counts as failed, with all its objects."),
+            ("table", headers, body),
+            ("h3", "Per object"),
+            ("p", "Times each object was picked successfully / attempted, per method (as the paper's GraspNet "
+                  "column counts the objects of a multi-object scene)."),
+            ("table", ["Scenario", "Object"] + methods, per_object)]
+
+
+def success_csv(run: Run) -> tuple[str, str]:
+    """(``table3.csv``, ``objects.csv``) text: one row per scenario (or object) x method x unit, with intervals."""
+    rows, methods = run.rows, methods_of(run.rows, run.manifest)
+    t3 = ["scenario,method,unit,k,n,rate,wilson95_low,wilson95_high"]
+    ob = ["scenario,object,method,k,n,rate,wilson95_low,wilson95_high"]
+
+    def cells(k: int, n: int) -> str:
+        lo, hi = wilson_interval(k, n)
+        return f"{k},{n},{k / n if n else ''},{lo},{hi}"
+
+    for sc in [*scenarios_of(rows), None]:
+        for m in methods:
+            label = sc if sc is not None else "all"
+            t3.append(f"{label},{m},trials,{cells(*trial_counts(rows, sc, m))}")
+            t3.append(f"{label},{m},objects,{cells(*success_counts(rows, sc, m))}")
+            if sc is not None:
+                ob += [f"{sc},{name},{m},{cells(k, n)}" for name, (k, n) in object_counts(rows, sc, m).items()]
+    return "\n".join(t3) + "\n", "\n".join(ob) + "\n"
 
 
 def reconstruction_table(run: Run) -> list[Block]:
@@ -319,33 +393,51 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
 
     rows, methods, scen = run.rows, methods_of(run.rows, run.manifest), scenarios_of(run.rows)
     blocks: list[Block] = []
-    # success by scenario and method
-    fig, ax = plt.subplots(figsize=(max(5.0, 0.9 * len(scen) * max(1, len(methods)) * 0.6 + 2), 3.5))
+    # success by scenario and method, in both units, with Wilson intervals and k/n written on every bar
+    fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.55 * len(scen) * max(1, len(methods)) + 2.5), 6.4),
+                             sharex=True)
     width = 0.8 / max(1, len(methods))
-    for i, m in enumerate(methods):
-        vals = []
-        for sc in scen:
-            k, n = success_counts(rows, sc, m)
-            vals.append(100.0 * k / n if n else 0.0)
-        ax.bar([j + i * width - 0.4 + width / 2 for j in range(len(scen))], vals, width, label=m)
-    ax.set_xticks(range(len(scen)), scen)
-    ax.set_ylabel("object success (%)")
-    ax.set_ylim(0, 105)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    ax.set_title(f"{run.name}: success by scenario")
-    blocks.append(_save_plot(fig, out_dir, f"{prefix}success_by_scenario.png", "success by scenario and method"))
-    # IoU distribution
-    iou = {m: [v for r in rows if r["method"] == m and (v := _get(r, "perception.silhouette_iou_mean")) is not None]
-           for m in methods}
-    if any(iou.values()):
-        fig, ax = plt.subplots(figsize=(5, 3.2))
-        for m, vals in iou.items():
-            if vals:
-                ax.hist(vals, bins=min(20, max(5, len(vals))), range=(0.0, 1.0), alpha=0.6, label=m)
-        ax.set_xlabel("silhouette IoU (per-trial mean)")
-        ax.set_ylabel("trials")
-        ax.legend()
-        blocks.append(_save_plot(fig, out_dir, f"{prefix}iou_distribution.png", "silhouette IoU distribution"))
+    for ax, (unit, counts) in zip(axes, (("trials", trial_counts), ("objects", success_counts)), strict=True):
+        for i, m in enumerate(methods):
+            xs = [j + i * width - 0.4 + width / 2 for j in range(len(scen))]
+            kn = [counts(rows, sc, m) for sc in scen]
+            rate = [100.0 * k / n if n else 0.0 for k, n in kn]
+            ci = [wilson_interval(k, n) for k, n in kn]
+            err = [[r - 100 * lo for r, (lo, _) in zip(rate, ci, strict=True)],
+                   [100 * hi - r for r, (_, hi) in zip(rate, ci, strict=True)]]
+            bars = ax.bar(xs, rate, width, label=m, yerr=err, capsize=2, error_kw={"elinewidth": 0.8})
+            colour = bars.patches[0].get_facecolor() if bars.patches else None
+            for x, (k, n), (_, hi) in zip(xs, kn, ci, strict=True):
+                if n and k == 0:  # a zero bar is invisible: mark it
+                    ax.plot([x - width / 2, x + width / 2], [0.8, 0.8], color=colour, linewidth=2.5)
+                ax.text(x, 100 * hi + 2, f"{k}/{n}" if n else "–", ha="center", va="bottom", fontsize=6,
+                        rotation=90)
+        ax.set_ylabel(f"{unit} success (%)")
+        ax.set_ylim(0, 125)
+        ax.set_yticks([0, 25, 50, 75, 100])
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    axes[0].set_title(f"{run.name}: success by scenario (bars: rate, whiskers: Wilson 95 %)")
+    axes[1].set_xticks(range(len(scen)), scen)
+    blocks.append(_save_plot(fig, out_dir, f"{prefix}success_by_scenario.png",
+                             "trial and object success by scenario and method, with Wilson 95 % intervals"))
+    # reconstruction quality against the outcome: per-trial silhouette IoU per scenario, failed trials marked
+    pts = [(scen.index(r["scenario"]), v, m, trial_failed(r)) for r in rows for m in methods
+           if r["method"] == m and (v := _get(r, "perception.silhouette_iou_mean")) is not None]
+    if pts:
+        fig, ax = plt.subplots(figsize=(max(5.0, 0.7 * len(scen) + 3), 3.4))
+        for i, m in enumerate(methods):
+            for failed, marker in ((False, "o"), (True, "x")):
+                sel = [(x, v) for x, v, mm, f in pts if mm == m and f == failed]
+                if sel:
+                    off = (i - (len(methods) - 1) / 2) * 0.15
+                    ax.scatter([x + off for x, _ in sel], [v for _, v in sel], marker=marker, s=18,
+                               label=f"{m} ({'failed' if failed else 'all picked'})", alpha=0.8)
+        ax.set_xticks(range(len(scen)), scen)
+        ax.set_ylabel("silhouette IoU (trial mean)")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        ax.set_title("reconstruction quality vs outcome, per trial")
+        blocks.append(_save_plot(fig, out_dir, f"{prefix}iou_vs_outcome.png",
+                                 "per-trial silhouette IoU by scenario; x = a trial with a failed pick"))
     # timing stack
     fig, ax = plt.subplots(figsize=(max(5.0, 1.3 * len(methods) + 3.5), 3.5))
     bottom = [0.0] * len(methods)
@@ -371,18 +463,20 @@ def comparison_blocks(a: Run, b: Run) -> list[Block]:
     body = []
     for sc in [*scen, None]:
         for m in methods:
-            ka, na = success_counts(a.rows, sc, m)
-            kb, nb = success_counts(b.rows, sc, m)
-            delta = (100.0 * kb / nb - 100.0 * ka / na) if na and nb else None
             label = sc if sc is not None else "**all**"
-            body.append([label, m, _kn(ka, na), _kn(kb, nb), "–" if delta is None else f"{delta:+.0f}"])
+            ta, tb = trial_counts(a.rows, sc, m), trial_counts(b.rows, sc, m)
+            oa, ob = success_counts(a.rows, sc, m), success_counts(b.rows, sc, m)
+            body.append([label, m, _kn(*ta), _kn(*tb), _diff(*ta, *tb), _kn(*oa), _kn(*ob), _diff(*oa, *ob)])
     perf = []
     for m in methods:
         ta, tb = timing_means(a.rows, m)["total"], timing_means(b.rows, m)["total"]
         perf.append([m, _fmt(ta), _fmt(tb)])
     return [("h2", f"Comparison: A = {a.name}, B = {b.name}"),
-            ("p", "Object success k/n (%) per scenario and method; Δ = B - A in percentage points."),
-            ("table", ["Scenario", "Method", f"A {a.name}", f"B {b.name}", "Δ pp"], body),
+            ("p", "Trial and object success k/n (rate [Wilson 95 %]) per scenario and method; Δ = B - A in "
+                  "percentage points [Newcombe 95 % interval]: an interval that contains 0 is no evidence of a "
+                  "difference."),
+            ("table", ["Scenario", "Method", "A trials", "B trials", "Δ trials pp", "A objects", "B objects",
+                       "Δ objects pp"], body),
             ("table", ["Method", "mean trial time A (s)", "mean trial time B (s)"], perf),
             ("p", f"Throughput: A {_fmt(overall_throughput(a), 1)} trials/hour, "
                   f"B {_fmt(overall_throughput(b), 1)} trials/hour.")]
@@ -467,13 +561,23 @@ def write_report(runs: list[str | Path], out_dir: str | Path | None = None) -> d
     md, page = out / "report.md", out / "report.html"
     md.write_text(to_markdown(blocks))
     page.write_text(to_html(blocks, title))
+    csvs = []
+    prefixes = [""] if len(loaded) == 1 else ["a_", "b_"]
+    for prefix, run in zip(prefixes, loaded, strict=True):
+        t3, objs = success_csv(run)
+        for name, text in ((f"{prefix}table3.csv", t3), (f"{prefix}objects.csv", objs)):
+            (out / name).write_text(text)
+            csvs.append(str(out / name))
     images = [str(out / b[1]) for b in blocks if b[0] == "img"]
-    summary: dict[str, Any] = {"report_md": str(md), "report_html": str(page), "plots": images, "runs": []}
+    summary: dict[str, Any] = {"report_md": str(md), "report_html": str(page), "plots": images, "csv": csvs,
+                               "runs": []}
     for run in loaded:
         summary["runs"].append({
             "name": run.name, "rows": len(run.rows), "problems": run.problems,
             "success": {m: dict(zip(("k", "n"), success_counts(run.rows, None, m), strict=True))
                         for m in methods_of(run.rows, run.manifest)},
+            "trial_success": {m: dict(zip(("k", "n"), trial_counts(run.rows, None, m), strict=True))
+                              for m in methods_of(run.rows, run.manifest)},
             "trials_per_hour": overall_throughput(run)})
     return summary
 
@@ -482,4 +586,5 @@ def _demote(blocks: list[Block]) -> list[Block]:
     return [(("h3",) + tuple(b[1:])) if b[0] == "h2" else b for b in blocks]
 
 
-__all__ = ["Run", "load_run", "success_counts", "throughput", "write_report"]
+__all__ = ["Run", "load_run", "object_counts", "success_counts", "success_csv", "throughput", "trial_counts",
+           "write_report"]

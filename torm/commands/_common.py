@@ -4,19 +4,58 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from typing import Any
 
 import numpy as np
 
 
-def add_overrides(parser: argparse.ArgumentParser) -> None:
-    """Add ``--config FILE`` and repeatable ``--set a.b=c`` to a parser."""
-    parser.add_argument("--config", default=None, help="YAML config file (defaults when omitted)")
+def plain(doc: str | None) -> str:
+    """A module docstring as plain text for ``--help``: RST roles, double backquotes and ``::`` removed."""
+    text = doc or ""
+    text = re.sub(r":(?:class|func|mod|meth|data|attr):`~?([^`]+)`", r"\1", text)
+    text = text.replace("``", "")
+    text = re.sub(r"::\n", ":\n", text)
+    return text.strip() + "\n"
+
+
+def add_parser(subparsers: argparse._SubParsersAction, name: str, doc: str | None, help: str,
+               **kwargs: Any) -> argparse.ArgumentParser:
+    """A sub-command parser whose description is the plain-text ``doc`` (examples kept as written)."""
+    return subparsers.add_parser(name, help=help, description=plain(doc),
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
+
+
+def add_overrides(parser: argparse.ArgumentParser, example: str, target: str) -> None:
+    """Add ``--config FILE`` and repeatable ``--set a.b=c`` to a parser.
+
+    Args:
+        example: a valid override for this command (shown in ``--help``), e.g. ``reconstruction.grid_res=64``.
+        target: the config the keys belong to (``torm config show NAME`` lists its keys), e.g. ``trial``.
+    """
+    parser.add_argument("--config", default=None, metavar="FILE.yaml",
+                        help=f"YAML config file of the {target} config (defaults when omitted; "
+                        f"`torm config show {target}` prints every key with its default)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-        help="override a config value, e.g. --set reconstruction.grid_res=64 (repeatable)",
+        help=f"override a {target} config value, e.g. --set {example} (repeatable; later wins)",
     )
+
+
+def add_record(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--record FILE.rrd`` (rerun recording of ``what``), with the old spelling ``--rrd`` kept as an alias."""
+    parser.add_argument("--record", "--rrd", dest="record", default=None, metavar="FILE.rrd",
+                        help=f"write a rerun recording of {what} to this file (--rrd: old name, still accepted)")
+
+
+def add_robot(parser: argparse.ArgumentParser, default: str | None, none_ok: bool = False) -> None:
+    """``--robot-config NAME|FILE`` with the old spelling ``--robot`` kept as an alias."""
+    extra = ", or 'none' for no robot" if none_ok else ""
+    parser.add_argument("--robot-config", "--robot", dest="robot_config", default=default, metavar="NAME|FILE",
+                        help=f"robot folder name under sim/robots or a robot YAML (default {default or 'inovo_2f85'})"
+                        f"{extra}; "
+                        "--robot: old name, still accepted")
 
 
 def _default(o: Any) -> Any:
@@ -27,7 +66,29 @@ def _default(o: Any) -> Any:
     return str(o)
 
 
+#: Significant digits of floats in CLI JSON output (1 um on metres, 1 us on seconds up to ~1 s).
+SIGNIFICANT_DIGITS = 6
+
+
+def rounded(obj: Any, digits: int = SIGNIFICANT_DIGITS) -> Any:
+    """``obj`` with every float (numpy ones too) rounded to ``digits`` significant digits, NaN/inf kept."""
+    if isinstance(obj, dict):
+        return {k: rounded(v, digits) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [rounded(v, digits) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return rounded(obj.tolist(), digits)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return float(f"{x:.{digits}g}") if np.isfinite(x) else x
+    return obj
+
+
+def dumps_json(obj: Any) -> str:
+    """``obj`` as indented JSON text with floats rounded (:func:`rounded`) and numpy values converted."""
+    return json.dumps(rounded(obj), indent=2, default=_default)
+
+
 def print_json(obj: Any) -> None:
-    """Write ``obj`` as indented JSON to stdout (numpy values converted)."""
-    json.dump(obj, sys.stdout, indent=2, default=_default)
-    sys.stdout.write("\n")
+    """Write ``obj`` as indented JSON to stdout (floats rounded to 6 significant digits, numpy values converted)."""
+    sys.stdout.write(dumps_json(obj) + "\n")

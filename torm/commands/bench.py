@@ -1,10 +1,10 @@
 """``torm bench``: run the closed-loop benchmark grid (scenario x trial x method) into a run folder.
 
-Example::
+Examples::
 
-    torm bench --suite rw --trials 10 --method torm --method depth --workers 2 --out runs/rw-night \\
-        [--scenario rw1 --scenario rw3] [--engine pool|ray] [--ray-address ADDR] [--timeout 1800] \\
-        [--record none|failures|all] [--fresh] [--set reconstruction.grid_res=64]
+    torm bench --suite rw --trials 10 --method torm --method depth --workers 2 --out runs/rw-night
+    torm bench --suite rw --scenario rw1 --scenario rw3 --trials 3 --record failures --out runs/rw13
+    torm bench --suite syn --trials 1 --set reconstruction.grid_res=64 --timeout 900 --out runs/syn-g64
 
 Re-running the same command resumes: finished trials (by key ``suite/scenario/trial/method``) are
 skipped. A changed config (suite, --set overrides, timeout, trial function, base seed) is refused
@@ -19,14 +19,14 @@ import argparse
 import signal
 from typing import Any
 
-from torm.commands._common import print_json
+from torm.commands._common import add_parser, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from torm.bench.spec import DEFAULT_TRIAL_FN, ENGINES, METHODS, RECORD_MODES
 
-    p = subparsers.add_parser("bench", help="run the closed-loop benchmark grid into a run folder (resumable)",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "bench", __doc__,
+                   help="run the closed-loop benchmark grid into a run folder (resumable)")
     p.add_argument("--suite", default="rw", help="scenario suite (rw, syn; default rw)")
     p.add_argument("--scenario", action="append", default=[], metavar="NAME",
                    help="only these scenarios of the suite (repeatable or comma-separated; default all)")
@@ -49,7 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a trial config value, e.g. --set capture.n_views=20 (repeatable)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
-    p.add_argument("--robot-config", default=None, help="robot folder name or robot YAML (default inovo_2f85)")
+    p.add_argument("--robot-config", "--robot", dest="robot_config", default=None, metavar="NAME|FILE",
+                   help="robot folder name or robot YAML (default inovo_2f85); --robot: old name, still accepted")
     p.add_argument("--hardware-config", default=None, metavar="FILE", help="hardware YAML for --backend real")
     p.add_argument("--arm-robot", action="store_true", help="allow the real arm to move (--backend real)")
     p.set_defaults(func=run)

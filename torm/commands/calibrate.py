@@ -1,27 +1,29 @@
 """``torm calibrate``: calibrations for the real robot.
 
-- ``torm calibrate hand-eye --images DIR --poses FILE --intrinsics FILE --board 7x5 --square 0.03
-  --marker 0.022 [--dict DICT_5X5_100] [--method PARK] [--robot-config inovo_2f85] --out hand_eye.yaml``:
-  eye-in-hand calibration of the wrist camera from ChArUco board images and the robot pose of each
-  image. Writes ``T_flange_cam`` (4x4, m, OpenCV camera axes) to ``--out`` and prints JSON with the
-  residuals (spread of the board's base-frame pose over the images: translation mm, rotation deg).
+- ``torm calibrate hand-eye``: eye-in-hand calibration of the wrist camera from ChArUco board images and
+  the robot pose of each image. Writes ``T_flange_cam`` (4x4, m, OpenCV camera axes) to ``--out`` and prints
+  JSON with the residuals (spread of the board's base-frame pose over the images: translation mm, rotation deg).
 
   ``--poses`` (YAML/JSON): ``poses: [{image: 000.png, q: [6 joint values, rad]}, ...]`` or with
   ``T_base_flange: 4x4`` instead of ``q``; joint values use the robot config's flange site for FK.
   ``--intrinsics`` (YAML/JSON): ``K`` (3x3) or ``fx, fy, cx, cy``, optional ``dist`` [k1, k2, p1, p2, k3]
   (e.g. the D455 colour stream's; use zeros for images already undistorted).
+
+Example::
+
+    torm calibrate hand-eye --images calib/images --poses calib/poses.yaml --intrinsics calib/d455.yaml \\
+        --board 7x5 --square 0.03 --marker 0.022 --out hand_eye.yaml
 """
 
 from __future__ import annotations
 
 import argparse
 
-from torm.commands._common import print_json
+from torm.commands._common import add_parser, add_robot, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("calibrate", help="real-robot calibrations (hand-eye)", description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "calibrate", __doc__, help="real-robot calibrations (hand-eye)")
     sub = p.add_subparsers(dest="calibrate_command", metavar="ACTION", required=True)
     he = sub.add_parser("hand-eye", help="eye-in-hand calibration from ChArUco images + robot poses")
     he.add_argument("--images", required=True, help="folder with the board images")
@@ -32,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     he.add_argument("--marker", type=float, default=0.022, help="marker side in metres (default 0.022)")
     he.add_argument("--dict", dest="dictionary", default="DICT_5X5_100", help="ArUco dictionary (default DICT_5X5_100)")
     he.add_argument("--method", default="PARK", help="TSAI | PARK | HORAUD | ANDREFF | DANIILIDIS (default PARK)")
-    he.add_argument("--robot-config", default="inovo_2f85", help="robot folder name or robot.yaml (for q -> FK)")
+    add_robot(he, "inovo_2f85")
     he.add_argument("--out", required=True, help="output hand-eye YAML")
     he.set_defaults(func=run_hand_eye)
 

@@ -1,13 +1,15 @@
 """``torm capture``: render a simulated multi-view capture of a scenario and save it as a capture folder.
 
-Example::
+Examples::
 
-    torm capture --scenario rw3 --seed 0 --views 50 --width 640 --height 360 --out runs/rw3_s0 [--rrd rw3.rrd]
-    torm capture --scenario rw3 --scale 0.5 --renderer pbr --spp 16 --out runs/rw3_pbr   # path-traced RGB
+    torm capture --scenario rw3 --seed 0 --views 50 --scale 0.5 --out runs/rw3_s0
+    torm capture --scenario rw3 --scale 0.5 --renderer pbr --spp 16 --out runs/rw3_pbr
+    torm capture --scenario rw7 --views 30 --depth-model statistical --set radius=0.6 --out runs/rw7 --record rw7.rrd
 
 Prints a JSON summary (folder, image size, intrinsics, objects, occlusion ratio, timings) on stdout.
-The rig config (``sim.camera_rig.CameraRigConfig``) can be given as YAML with ``--config`` and
-``--set key=value`` overrides; ``--views/--width/--height/--scale`` override it.
+The rig config (``sim.camera_rig.CameraRigConfig``; ``torm config show capture`` lists its keys) can be
+given as YAML with ``--config`` and ``--set key=value`` overrides; ``--views/--width/--height/--scale``
+override it.
 """
 
 from __future__ import annotations
@@ -16,12 +18,12 @@ import argparse
 import time
 from pathlib import Path
 
-from torm.commands._common import add_overrides, print_json
+from torm.commands._common import add_overrides, add_parser, add_record, add_robot, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("capture", help="render a simulated multi-view capture of a scenario to a folder",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "capture", __doc__,
+                   help="render a simulated multi-view capture of a scenario to a folder")
     p.add_argument("--scenario", required=True, help="scenario name (see `torm scenes list`)")
     p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
     p.add_argument("--views", type=int, default=None, help="number of views (default: the rig config's, 50)")
@@ -29,16 +31,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--height", type=int, default=None, help="image height in pixels (default 720)")
     p.add_argument("--scale", type=float, default=None, help="scale the image size (e.g. 0.5 -> 640x360)")
     p.add_argument("--out", required=True, help="output capture folder (transforms.json convention)")
-    p.add_argument("--robot", default="inovo_2f85", help="robot attached to the scene (hidden in renders), or 'none'")
+    add_robot(p, "inovo_2f85", none_ok=True)
     p.add_argument("--depth-model", default="ideal", choices=("ideal", "statistical", "stereo"),
                    help="sensor-depth model (sim/depth): ideal (glass invisible), statistical, stereo (default ideal)")
     p.add_argument("--no-occlusion", action="store_true", help="skip computing the occlusion ratio")
     p.add_argument("--progress", action="store_true", help="show a progress bar on stderr")
-    p.add_argument("--rrd", default=None, help="also write a rerun recording of the capture to this file")
+    add_record(p, "the capture")
     p.add_argument("--renderer", choices=("mujoco", "pbr"), default="mujoco",
                    help="who renders RGB: MuJoCo's rasteriser or the Mitsuba path tracer (depth and masks: MuJoCo)")
     p.add_argument("--spp", type=int, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
-    add_overrides(p)
+    add_overrides(p, example="radius=0.6", target="capture")
     p.set_defaults(func=run)
 
 
@@ -59,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     rig_cfg = cfgmod.load(CameraRigConfig, args.config, overrides)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    world = build_world(args.scenario, args.seed, robot=None if args.robot == "none" else args.robot)
+    world = build_world(args.scenario, args.seed, robot=None if args.robot_config == "none" else args.robot_config)
     timings["build_world_s"] = time.perf_counter() - t0
     from sim.depth import make_depth_model
 
@@ -85,13 +87,13 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     path = save_capture(cap, Path(args.out))
     timings["save_s"] = time.perf_counter() - t0
-    if args.rrd:
+    if args.record:
         import rerun as rr
 
         from torm.viz import log_capture
 
         rec = rr.RecordingStream("torm")
-        rec.save(args.rrd)
+        rec.save(args.record)
         log_capture(rec, cap)
         rec.flush()
     H, W = cap.image_size
@@ -109,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         "occlusion_ratio": None if occ is None else occ.ratio,
         "occluded_views": None if occ is None else int(occ.view_flags.sum()),
         "views_per_s": len(cap) / max(timings["render_s"], 1e-9),
-        "rrd": args.rrd,
+        "record": args.record,
         "timings": timings,
     })
     return 0

@@ -11,8 +11,9 @@ Masks come from the capture (``mask_path`` per frame) unless ``--segmenter`` is 
 ``scene.ply``, ``object_<k>.{ply,obj,glb}`` (meshes, metres, world frame), ``object_<k>_points.ply``
 (equal-count surface samples with normals), ``reconstruction.json`` (timings, curves, config) and,
 when the capture holds ground truth (masks and/or ideal depth), ``metrics.json`` with the silhouette
-IoU and the paper's Table II depth metrics. ``--rrd FILE`` writes a rerun recording.
-``--config``/``--set`` configure :class:`torm.reconstruction.ReconstructionConfig`.
+IoU and the paper's Table II depth metrics. ``--record FILE.rrd`` writes a rerun recording.
+``--config``/``--set`` configure :class:`torm.reconstruction.ReconstructionConfig` (``torm config show
+reconstruct`` lists its keys).
 """
 
 from __future__ import annotations
@@ -25,21 +26,20 @@ from typing import Any
 
 import numpy as np
 
-from torm.commands._common import add_overrides, print_json
+from torm.commands._common import add_overrides, add_parser, add_record, print_json
 
 log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("reconstruct", help="reconstruct per-object meshes from a capture folder",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "reconstruct", __doc__, help="reconstruct per-object meshes from a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--segmenter", default=None, help="gt | noisy | grounded_sam (default: the capture's masks)")
     p.add_argument("--preset", default=None, help="noisy: error preset (default paper)")
     p.add_argument("--seg-config", default=None, help="segmenter config YAML (e.g. ONNX model paths)")
-    p.add_argument("--rrd", default=None, help="write a rerun recording of the capture and the result")
-    add_overrides(p)
+    add_record(p, "the capture and the result")
+    add_overrides(p, example="grid_res=64", target="reconstruct")
     p.set_defaults(func=run)
 
 
@@ -102,10 +102,10 @@ def run(args: argparse.Namespace) -> int:
         metrics["n_objects_found"] = rec.n_objects
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
         summary["metrics"] = metrics
-    if args.rrd:
+    if args.record:
         from torm.viz import TrialRecorder
 
-        recorder = TrialRecorder(args.rrd)
+        recorder = TrialRecorder(args.record)
         recorder.perception(capture, list(rec.object_meshes), list(rec.point_clouds), [[] for _ in rec.point_clouds])
         recorder.close()
     print_json(summary)

@@ -1,10 +1,16 @@
 """``torm scenes``: list, check and look at the simulated scenarios.
 
-- ``torm scenes list [--suite rw]``: JSON with every scenario (objects, spacing, suite) and library object.
-- ``torm scenes check [--suite rw] [--scenario rw3 ...] [--seeds 0 1]``: build, settle and step every
-  scene; JSON report; exit status 1 when any scene fails.
-- ``torm scenes show --scenario rw3 --out DIR [--views 6] [--rrd FILE]``: render a few views to PNGs
-  (RGB, instance mask, depth, sensor depth) and optionally a rerun recording of the capture.
+- ``torm scenes list``: JSON with every scenario (objects, spacing, suite) and library object.
+- ``torm scenes check``: build, settle and step every scene; JSON report; exit status 1 when any scene fails.
+- ``torm scenes show``: render a few views to PNGs (RGB, instance mask, depth, sensor depth) and optionally a
+  rerun recording of the capture.
+
+Examples::
+
+    torm scenes list --suite rw
+    torm scenes check --suite rw --seeds 0 1
+    torm scenes check --scenario rw3 --scenario syn5
+    torm scenes show --scenario rw3 --views 6 --out runs/rw3_views --record rw3.rrd
 """
 
 from __future__ import annotations
@@ -15,12 +21,11 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from torm.commands._common import print_json
+from torm.commands._common import add_parser, add_record, add_robot, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("scenes", help="list, check and render the simulated scenarios",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "scenes", __doc__, help="list, check and render the simulated scenarios")
     sub = p.add_subparsers(dest="scenes_command", metavar="ACTION", required=True)
 
     pl = sub.add_parser("list", help="JSON list of scenarios and library objects")
@@ -31,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pc.add_argument("--suite", default=None, help="only this suite")
     pc.add_argument("--scenario", action="append", default=[], help="only these scenarios (repeatable)")
     pc.add_argument("--seeds", type=int, nargs="+", default=[0], help="layout seeds to build (default 0)")
-    pc.add_argument("--robot", default="inovo_2f85", help="robot attached to each scene, or 'none'")
+    add_robot(pc, "inovo_2f85", none_ok=True)
     pc.add_argument("--seconds", type=float, default=1.0, help="simulated seconds to step each scene (default 1)")
     pc.set_defaults(func=run_check)
 
@@ -42,8 +47,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ps.add_argument("--width", type=int, default=640, help="image width (default 640)")
     ps.add_argument("--height", type=int, default=360, help="image height (default 360)")
     ps.add_argument("--out", required=True, help="folder for the PNGs")
-    ps.add_argument("--rrd", default=None, help="also write a rerun recording of the capture to this file")
-    ps.add_argument("--robot", default="inovo_2f85", help="robot attached to the scene, or 'none'")
+    add_record(ps, "the capture")
+    add_robot(ps, "inovo_2f85", none_ok=True)
     ps.set_defaults(func=run_show)
 
 
@@ -82,7 +87,7 @@ def run_check(args: argparse.Namespace) -> int:
             row: dict[str, Any] = {"scenario": name, "seed": seed}
             t0 = time.perf_counter()
             try:
-                world = build_world(name, seed, robot=_robot(args.robot))
+                world = build_world(name, seed, robot=_robot(args.robot_config))
                 row["build_s"] = time.perf_counter() - t0
                 row["layout_attempts"] = world.layout_attempts
                 row["ngeom"] = int(world.model.ngeom)
@@ -109,7 +114,7 @@ def run_show(args: argparse.Namespace) -> int:
     from sim.world import build_world
     from torm.viz import instance_colors
 
-    world = build_world(args.scenario, args.seed, robot=_robot(args.robot))
+    world = build_world(args.scenario, args.seed, robot=_robot(args.robot_config))
     cfg = CameraRigConfig(n_views=args.views, width=args.width, height=args.height)
     with SimCameraRig.from_world(world, cfg) as rig:
         cap = rig.capture()
@@ -141,18 +146,18 @@ def run_show(args: argparse.Namespace) -> int:
     summary: dict[str, Any] = {"scenario": cap.scenario, "seed": cap.seed, "views": len(cap),
                                "object_ids": list(cap.object_ids), "object_names": list(cap.object_names),
                                "out": str(out), "files": files}
-    if args.rrd:
+    if args.record:
         import rerun as rr
 
         from torm.viz import log_capture, log_mesh
 
         rec = rr.RecordingStream("torm")
-        rec.save(args.rrd)
+        rec.save(args.record)
         log_capture(rec, cap)
         for o, mesh in zip(world.objects, world.object_meshes_world(), strict=True):
             log_mesh(rec, f"world/objects/{o.instance_id}_{o.name}", mesh,
                      color=[*(int(c) for c in colors[o.instance_id]), 255])
         rec.flush()
-        summary["rrd"] = str(args.rrd)
+        summary["record"] = str(args.record)
     print_json(summary)
     return 0

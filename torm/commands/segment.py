@@ -3,6 +3,7 @@
 Examples::
 
     torm segment runs/rw3_s0 --segmenter noisy --preset paper --seed 0 --out runs/rw3_s0_noisy
+    torm segment runs/rw3_s0 --segmenter noisy --set overrides.p_missing_view=0.2 --out runs/rw3_s0_miss
     torm segment runs/rw3_s0 --segmenter grounded_sam --config models/grounded_sam.yaml \\
         --prompt "clear glass. transparent object." --out runs/rw3_s0_gsam
     torm segment runs/rw3_s0 --segmenter gt --check-views drop
@@ -12,7 +13,8 @@ depth) whose ``masks/`` hold the predicted 16-bit instance masks. The input fold
 When the input had ground-truth masks they are kept in ``gt_masks/`` and the mask quality (IoU vs GT)
 is stored in ``metadata.segmentation``; GT object ids/names move to ``metadata.gt_object_ids/names``
 and ``object_ids`` lists the predicted instance ids. ``--config`` is YAML with the segmenter's config
-fields at the top level (or under a key named after the segmenter); ``--set key=value`` overrides them.
+fields at the top level (or under a key named after the segmenter); ``--set key=value`` overrides them
+(``torm config show segment:NAME`` lists a segmenter's keys, e.g. ``segment:noisy``).
 With ``--check-views`` the cross-view consistency checks run and ``drop`` writes only the kept views.
 Prints a JSON summary (timings, detections per view, quality, flagged views) on stdout.
 """
@@ -28,14 +30,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from torm.commands._common import add_overrides, print_json
+from torm.commands._common import add_overrides, add_parser, print_json
 
 log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("segment", help="extract per-view instance masks of a capture folder",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "segment", __doc__, help="extract per-view instance masks of a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
     p.add_argument("--segmenter", default="grounded_sam", help="gt | noisy | grounded_sam (default grounded_sam)")
     p.add_argument("--prompt", default=None, help="grounded_sam text prompt, phrases separated by '.'")
@@ -44,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--check-views", choices=("none", "flag", "drop"), default="none",
                    help="cross-view consistency checks: report (flag) or remove (drop) inconsistent views")
     p.add_argument("--out", default=None, help="output capture folder (default CAPTURE_DIR_<segmenter>)")
-    add_overrides(p)
+    add_overrides(p, example="overrides.p_missing_view=0.2", target="segment:SEGMENTER")
     p.set_defaults(func=run)
 
 

@@ -1,22 +1,34 @@
-"""``torm trial``: one closed-loop trial (capture -> silhouettes -> reconstruction -> grasps -> picks)."""
+"""``torm trial``: one closed-loop trial (capture -> silhouettes -> reconstruction -> grasps -> picks).
+
+Runs capture, silhouettes, reconstruction, grasp planning and a pick of every object, judged by the paper's
+25 cm lift / 20 cm translation test, and prints the result record as JSON on stdout: a ``summary`` first
+(scenario, method, k/n objects picked, outcome per object, total time), then what produced it
+(``context``), timings, perception metrics, per-object outcomes, and the resolved ``config`` last.
+Progress (each stage with its time) goes to stderr; ``torm -q trial ...`` silences it.
+
+Examples::
+
+    torm trial --scenario rw3 --seed 0
+    torm trial --scenario rw7 --method depth --out runs/rw7_depth.json
+    torm trial --scenario rw3 --segmenter noisy --preset severe --record rw3.rrd
+    torm trial --scenario syn5 --set reconstruction.grid_res=64 --set capture.n_views=30
+    torm trial --backend real --robot-config inovo_2f85 --hardware-config hw.yaml --arm-robot
+
+``torm config show trial`` prints every config key with its default.
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
 
-from torm.commands._common import add_overrides, print_json
+from torm.commands._common import add_overrides, add_parser, add_record, add_robot, dumps_json, print_json
 
 log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "trial",
-        help="run one closed-loop grasp trial and print its JSON result",
-        description="Run one closed-loop trial: capture, silhouettes, reconstruction, grasp planning and a pick "
-        "of every object, judged by the paper's 25 cm lift / 20 cm translation test. Prints the result record.",
-    )
+    p = add_parser(sub, "trial", __doc__, help="run one closed-loop grasp trial and print its JSON result")
     p.add_argument("--scenario", default=None, help="scenario name (torm scenes list); default rw3")
     p.add_argument("--seed", type=int, default=None, help="layout / noise seed (default 0)")
     p.add_argument("--method", choices=("torm", "depth", "depth_fusion", "oracle"), default=None,
@@ -27,16 +39,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default=None, help="error-model preset for --segmenter noisy (default paper)")
     p.add_argument("--views", type=int, default=None, help="number of views (default 50)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
-    p.add_argument("--robot-config", default=None, help="robot folder name or robot YAML (default inovo_2f85)")
+    add_robot(p, None)
     p.add_argument("--hardware-config", default=None, metavar="FILE",
                    help="hardware YAML for --backend real (rosbridge host, gripper serial port, hand-eye file)")
     p.add_argument("--arm-robot", action="store_true",
                    help="allow the real arm to move (without it --backend real refuses every motion)")
     p.add_argument("--re-perceive", action="store_true", help="capture and reconstruct again before every pick")
-    p.add_argument("--record", default=None, metavar="FILE.rrd",
-                   help="write a rerun recording (images, masks, meshes, grasps, motion)")
+    add_record(p, "the trial (images, masks, meshes, grasps, motion, outcomes)")
     p.add_argument("--out", default=None, help="also write the JSON result to this file")
-    add_overrides(p)
+    add_overrides(p, example="reconstruction.grid_res=64", target="trial")
     p.set_defaults(func=run)
 
 
@@ -60,7 +71,6 @@ def trial_config_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     from pathlib import Path
 
     from torm.pipeline import run_trial
@@ -69,6 +79,6 @@ def run(args: argparse.Namespace) -> int:
     result = run_trial(cfg, record=args.record)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(result, indent=2, default=str))
+        Path(args.out).write_text(dumps_json(result))
     print_json(result)
     return 0

@@ -1,6 +1,6 @@
 """Gymnasium environments (and a dm_env adapter) on the simulated robot.
 
-Importing :mod:`torm.env` registers, with versioned ids:
+Importing :mod:`torm` (or :mod:`torm.env`) registers, with versioned ids:
 
 - ``torm/TormPick-v0``: low-level pick for RL (:class:`torm.env.pick_env.TormPickEnv`): images and
   proprioception in, end-effector delta poses and a gripper command out; the paper's lift test as reward.
@@ -8,14 +8,20 @@ Importing :mod:`torm.env` registers, with versioned ids:
   choose one of the planner's top-K grasps for a target object; reward 1 when the executed pick passes the
   paper's success test.
 
-``gymnasium.make("torm/TormPick-v0")`` works after ``import torm.env``; without the import use
-``gymnasium.make("torm.env:torm/TormPick-v0")`` (gymnasium imports the module named before the colon).
+``gymnasium.make("torm/TormPick-v0")`` works after ``import torm``; as in Gymnasium-Robotics,
+``gymnasium.register_envs(torm)`` keeps linters from flagging that import as unused. Without any import,
+``gymnasium.make("torm:torm/TormPick-v0")`` works too (gymnasium imports the module named before the colon).
+The specs carry ``max_episode_steps`` (TimeLimit): 200 steps for TormPick, 1 for TormGraspSelect (one pick).
 Wrap any of them with :class:`torm.env.dm_env_adapter.GymToDmEnv` for dm_env / dm-control agents.
 """
 
 from __future__ import annotations
 
 import gymnasium
+
+#: Episode lengths of the registered specs (steps).
+PICK_MAX_EPISODE_STEPS = 200
+GRASP_SELECT_MAX_EPISODE_STEPS = 1
 
 PICK_ID = "torm/TormPick-v0"
 GRASP_SELECT_ID = "torm/TormGraspSelect-v0"
@@ -25,11 +31,13 @@ def register_envs() -> None:
     """Register the torm envs with gymnasium (idempotent; called at import)."""
     registry = gymnasium.envs.registration.registry
     if PICK_ID not in registry:
-        gymnasium.register(id=PICK_ID, entry_point="torm.env.pick_env:TormPickEnv", disable_env_checker=False)
+        gymnasium.register(id=PICK_ID, entry_point="torm.env.pick_env:TormPickEnv", disable_env_checker=False,
+                           max_episode_steps=PICK_MAX_EPISODE_STEPS)
     if GRASP_SELECT_ID not in registry:
-        gymnasium.register(id=GRASP_SELECT_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv")
+        gymnasium.register(id=GRASP_SELECT_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
+                           max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS)
 
 
 register_envs()
 
-__all__ = ["GRASP_SELECT_ID", "PICK_ID", "register_envs"]
+__all__ = ["GRASP_SELECT_ID", "GRASP_SELECT_MAX_EPISODE_STEPS", "PICK_ID", "PICK_MAX_EPISODE_STEPS", "register_envs"]

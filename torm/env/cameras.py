@@ -27,7 +27,7 @@ from torm.errors import ConfigError, UnknownNameError  # noqa: E402
 from torm.geometry import look_at_cv  # noqa: E402
 
 #: Camera names the envs know.
-CAMERA_NAMES = ("overview", "wrist")
+CAMERA_NAMES = ("overview", "wrist", "scene")
 #: Largest depth reported (m); the depth space's upper bound.
 MAX_DEPTH = 10.0
 #: Geom groups drawn: environment, robot, glass objects, opaque objects (collision geoms hidden).
@@ -36,6 +36,12 @@ VISIBLE_GROUPS = (0, 1, 2, 4)
 #: Overview camera: in front of and beside the workspace, looking at the table in front of the robot (m).
 OVERVIEW_EYE = (0.95, 0.42, 0.50)
 OVERVIEW_TARGET = (0.50, 0.0, 0.10)
+#: Scene camera (``render()``): in front of the robot and to its right, far enough back to show the whole
+#: arm (base at the origin, about 1.3 m tall at its zero pose) and the object workspace on the table (m).
+SCENE_EYE = (1.35, -1.15, 0.95)
+SCENE_TARGET = (0.40, 0.0, 0.35)
+#: Vertical field of view of the scene camera (deg).
+SCENE_FOVY_DEG = 50.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +63,11 @@ def overview_pose() -> np.ndarray:
     return look_at_cv(np.array(OVERVIEW_EYE), np.array(OVERVIEW_TARGET))
 
 
+def scene_pose() -> np.ndarray:
+    """(4, 4) OpenCV ``T_world_cam`` of the fixed scene camera used by ``render()`` (whole arm + workspace)."""
+    return look_at_cv(np.array(SCENE_EYE), np.array(SCENE_TARGET))
+
+
 def wrist_pose(T_world_tcp: np.ndarray, approach_axis: str, closing_axis: str, mount: WristMount) -> np.ndarray:
     """(4, 4) OpenCV ``T_world_cam`` of the wrist camera for TCP pose ``T_world_tcp`` (4, 4)."""
     axes = "xyz"
@@ -74,7 +85,8 @@ class EnvCameras:
     Args:
         model, data: the scene (``data`` is read, never stepped).
         height, width: image size in pixels.
-        fovy_deg: vertical field of view of the overview camera (deg); the wrist camera uses ``mount.fovy_deg``.
+        fovy_deg: vertical field of view of the overview camera (deg); the wrist camera uses ``mount.fovy_deg``,
+            the scene camera :data:`SCENE_FOVY_DEG`.
         tcp_site: name of the TCP site (for the wrist camera).
         approach_axis, closing_axis: TCP axes of the gripper ("x"/"y"/"z").
         mount: wrist camera placement.
@@ -110,6 +122,7 @@ class EnvCameras:
         self._free_cam = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(model, self._free_cam)
         self._overview = overview_pose()
+        self._scene = scene_pose()
         # The first depth frame of a fresh GL context differs from later ones by ~1e-5 m; render one frame of
         # each kind now so equal states always give bit-identical observations.
         self.render(["overview"], depth=True)
@@ -122,6 +135,8 @@ class EnvCameras:
         """(4, 4) OpenCV ``T_world_cam`` of camera ``name`` now."""
         if name == "overview":
             return self._overview
+        if name == "scene":
+            return self._scene
         if name == "wrist":
             if self._tcp is None:
                 raise ConfigError("the wrist camera needs tcp_site")
@@ -132,6 +147,8 @@ class EnvCameras:
         raise UnknownNameError("camera", name, CAMERA_NAMES)
 
     def _fovy(self, name: str) -> float:
+        if name == "scene":
+            return SCENE_FOVY_DEG
         return self.mount.fovy_deg if name == "wrist" else self.fovy_deg
 
     def _update(self, name: str) -> None:

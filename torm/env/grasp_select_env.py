@@ -344,7 +344,7 @@ class TormGraspSelectEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array" or self._render_cams is None:
             return None
-        return self._render_cams.render(["overview"], depth=False)["overview_rgb"]
+        return self._render_cams.render(["scene"], depth=False)["scene_rgb"]
 
     def close(self) -> None:
         self._close_world()

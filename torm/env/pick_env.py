@@ -1,11 +1,15 @@
 """``torm/TormPick-v0``: a low-level pick env for RL on the simulated robot (MuJoCo, simulation only).
 
 Action (``Box(7,) float32``): an end-effector delta pose and a gripper command,
-``[dx, dy, dz, droll, dpitch, dyaw, grip]``: the TCP target moves by (dx, dy, dz) m in the world frame
-(at most ``max_pos_step`` per step) and turns by the extrinsic world-axis rotation (droll, dpitch, dyaw) rad
-about the TCP (at most ``max_rot_step``); ``grip`` in [-1, 1] maps linearly to the pad gap,
--1 = fully open (the gripper's stroke), +1 = fully closed. An action outside the box raises
-:class:`~torm.env.errors.InvalidActionError` naming the bounds.
+``[dx, dy, dz, droll, dpitch, dyaw, grip]``. With ``action_mode="normalized"`` (default) every component is
+in [-1, 1] and maps linearly to the physical limits: the TCP target moves by ``a[:3] * max_pos_step`` m in the
+world frame and turns by the extrinsic world-axis rotation ``a[3:6] * max_rot_step`` rad about the TCP; with
+``action_mode="raw"`` the action is in those physical units (m, rad per step) and the box is
+``[-max_pos_step, max_pos_step]^3 x [-max_rot_step, max_rot_step]^3 x [-1, 1]``. ``grip`` in [-1, 1] (both modes)
+maps linearly to the pad gap, -1 = fully open (the gripper's stroke), +1 = fully closed. An action outside the
+box is clipped into it (``out_of_bounds="clip"``, default; ``info["action_clipped"]`` says so) or refused with
+:class:`~torm.env.errors.InvalidActionError` naming the bounds (``out_of_bounds="raise"``); a wrong shape or a
+NaN/inf component is always refused.
 
 Each step: the TCP target is clipped into ``tcp_box`` (``info["clipped"]``), IK (mink, :class:`IKSolver`) solves
 the arm joints from the current joint targets; an unreachable target, or one that needs joints faster than
@@ -33,8 +37,11 @@ The (lower, release) part of the paper's test is not required in this env.
 Reward: ``success_reward`` (1.0) on the success step, 0 otherwise; with ``reward_shaping`` a dense term is
 added every step: ``w_reach * (1 - tanh(10 d))`` (d = TCP-to-object distance, m) + ``w_grasp`` when both pads
 touch the object + ``w_lift * clip(lift / lift_height, 0, 1)`` while held (+ ``w_translate`` x the
-translation fraction in ``lift_translate`` mode). Termination: success or physics error. Truncation: after
-``max_episode_steps`` steps (counted in the env; no TimeLimit wrapper is needed).
+translation fraction in ``lift_translate`` mode). Termination: success or physics error.
+Truncation: ``gymnasium.make`` wraps the env in a ``TimeLimit`` of :data:`torm.env.PICK_MAX_EPISODE_STEPS`
+(200) steps (the registered spec's ``max_episode_steps``; change it with
+``gymnasium.make(id, max_episode_steps=N)``); a directly constructed env truncates only when its config's
+``max_episode_steps`` is set.
 
 Seeding: ``reset(seed=s)`` builds the scenario's layout from seed ``s`` (the same seed gives the same layout
 and, for the same actions, the same rollout). ``reset()`` without a seed keeps the fixed ``layout_seed`` when
@@ -65,6 +72,8 @@ from torm.execution.success import SuccessCriteria
 log = logging.getLogger(__name__)
 
 SUCCESS_MODES = ("lift", "lift_translate")
+ACTION_MODES = ("normalized", "raw")
+OUT_OF_BOUNDS = ("clip", "raise")
 #: Observation bounds: positions within this many metres of the base; joint speeds within this factor x limits.
 POSITION_BOUND = 3.0
 JOINT_SPEED_BOUND_FACTOR = 10.0
@@ -87,12 +96,15 @@ class PickEnvConfig:
         wrist: placement and field of view of the wrist camera.
         privileged_state: add the target object's true pose to the observation.
         control_period: simulated time per env step (s).
+        action_mode: "normalized" (actions in [-1, 1] scaled to the limits below) or "raw" (m, rad per step).
+        out_of_bounds: "clip" (clip into the action box) or "raise" (InvalidActionError naming the bounds).
         max_pos_step: largest TCP translation per step on each axis (m).
         max_rot_step: largest TCP rotation per step about each world axis (rad).
         tcp_box: ((x, y, z)_min, (x, y, z)_max) box the TCP target is clipped into (m).
         speed_scale: fraction of the joint speed limits a step may need before it is rejected, (0, 1].
         ik: IK tolerances.
-        max_episode_steps: truncation horizon (steps).
+        max_episode_steps: truncation horizon counted by the env itself (steps); None = leave it to gymnasium's
+            TimeLimit (the registered spec uses 200).
         success: "lift" or "lift_translate" (see the module docstring).
         criteria: lift height, translation and tolerances of the success test.
         held_distance: largest object-origin-to-TCP distance that counts as "in the hand" (m).
@@ -113,12 +125,14 @@ class PickEnvConfig:
     wrist: WristMount = field(default_factory=WristMount)
     privileged_state: bool = False
     control_period: float = 0.1
+    action_mode: str = "normalized"
+    out_of_bounds: str = "clip"
     max_pos_step: float = 0.02
     max_rot_step: float = 0.1
     tcp_box: tuple[tuple[float, float, float], tuple[float, float, float]] = ((0.15, -0.5, 0.02), (0.95, 0.5, 0.7))
     speed_scale: float = 0.5
     ik: IKConfig = field(default_factory=IKConfig)
-    max_episode_steps: int = 200
+    max_episode_steps: int | None = None
     success: str = "lift"
     criteria: SuccessCriteria = field(default_factory=SuccessCriteria)
     held_distance: float = 0.15
@@ -144,12 +158,16 @@ class PickEnvConfig:
             object.__setattr__(self, name, hw)
         if self.success not in SUCCESS_MODES:
             raise UnknownNameError("success mode", self.success, SUCCESS_MODES)
+        if self.action_mode not in ACTION_MODES:
+            raise UnknownNameError("action_mode", self.action_mode, ACTION_MODES)
+        if self.out_of_bounds not in OUT_OF_BOUNDS:
+            raise UnknownNameError("out_of_bounds", self.out_of_bounds, OUT_OF_BOUNDS)
         for name in ("control_period", "max_pos_step", "max_rot_step", "held_distance"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"PickEnvConfig.{name} must be positive, got {getattr(self, name)}")
         if not 0.0 < self.speed_scale <= 1.0:
             raise ConfigError(f"PickEnvConfig.speed_scale must be in (0, 1], got {self.speed_scale}")
-        if self.max_episode_steps < 1 or self.target_object < 1:
+        if (self.max_episode_steps is not None and self.max_episode_steps < 1) or self.target_object < 1:
             raise ConfigError("PickEnvConfig.max_episode_steps and target_object must be >= 1")
         lo, hi = (np.asarray(b, float) for b in self.tcp_box)
         if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
@@ -180,8 +198,10 @@ class TormPickEnv(gym.Env):
         from sim.robot_config import load_robot_config
 
         self._rcfg = load_robot_config(cfg.robot, validate=False)
-        lo = np.array([-cfg.max_pos_step] * 3 + [-cfg.max_rot_step] * 3 + [-1.0], np.float32)
-        self.action_space = spaces.Box(lo, -lo, dtype=np.float32)
+        #: physical size of one unit of each normalised action component (m, m, m, rad, rad, rad, grip)
+        self.action_scale = np.array([cfg.max_pos_step] * 3 + [cfg.max_rot_step] * 3 + [1.0])
+        hi = np.ones(7, np.float32) if cfg.action_mode == "normalized" else self.action_scale.astype(np.float32)
+        self.action_space = spaces.Box(-hi, hi, dtype=np.float32)
         qd = JOINT_SPEED_BOUND_FACTOR * np.asarray(self._rcfg.arm.velocity_limits, np.float32)
         pose_hi = np.array([POSITION_BOUND] * 3 + [1.0] * 4, np.float32)
         obs: dict[str, spaces.Space] = {
@@ -289,7 +309,7 @@ class TormPickEnv(gym.Env):
     def step(self, action):
         if self._backend is None:
             raise ConfigError("call reset() before step()")
-        a = self._check_action(action)
+        a, action_clipped = self._check_action(action)
         cfg = self.config
         clipped, rejected = False, None
         T_new = self._T_target.copy()
@@ -329,14 +349,15 @@ class TormPickEnv(gym.Env):
         if cfg.reward_shaping and self._physics_error is None:
             reward += self._shaping(stage_info)
         terminated = terminated or success
-        truncated = (not terminated) and self._steps >= cfg.max_episode_steps
+        truncated = (not terminated) and cfg.max_episode_steps is not None and self._steps >= cfg.max_episode_steps
         info = self._info(clipped, rejected, success, stage_info)
+        info["action_clipped"] = action_clipped
         return self._observation(), float(reward), terminated, truncated, info
 
     def render(self):
         if self.render_mode != "rgb_array" or self._render_cams is None:
             return None
-        return self._render_cams.render(["overview"], depth=False)["overview_rgb"]
+        return self._render_cams.render(["scene"], depth=False)["scene_rgb"]
 
     def close(self) -> None:
         self._free_cameras()
@@ -347,25 +368,35 @@ class TormPickEnv(gym.Env):
         self._layout = None
 
     # ------------------------------------------------------------------------------------------ internals
-    def _check_action(self, action) -> np.ndarray:
+    def _check_action(self, action) -> tuple[np.ndarray, bool]:
+        """The action in physical units (m, rad per step; grip -1..1) and whether it had to be clipped."""
         box = self.action_space
+        units = "normalised, -1..1" if self.config.action_mode == "normalized" else "m, rad per step; grip -1..1"
         try:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise InvalidActionError(f"action {action!r} is not numeric; give 7 floats within "
-                                     f"{box.low.tolist()}..{box.high.tolist()}") from exc
+                                     f"{box.low.tolist()}..{box.high.tolist()} ({units})") from exc
         if a.shape != box.shape:
-            raise InvalidActionError(f"action has shape {a.shape}, expected {box.shape}: [dx, dy, dz (m), droll, "
-                                     "dpitch, dyaw (rad), grip (-1 open .. 1 closed)]")
+            raise InvalidActionError(f"action has shape {a.shape}, expected {box.shape}: [dx, dy, dz, droll, "
+                                     f"dpitch, dyaw, grip (-1 open .. 1 closed)] ({units})")
+        names = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "grip"]
+        if not np.all(np.isfinite(a)):
+            i = int(np.argmax(~np.isfinite(a)))
+            raise InvalidActionError(f"action[{i}] ({names[i]}) = {a[i]!r} is not finite (NaN/inf is never clipped); "
+                                     f"give values within [{box.low[i]:g}, {box.high[i]:g}] ({units})")
         tol = 1e-6
-        bad = ~np.isfinite(a) | (a < box.low - tol) | (a > box.high + tol)
-        if np.any(bad):
+        bad = (a < box.low - tol) | (a > box.high + tol)
+        if np.any(bad) and self.config.out_of_bounds == "raise":
             i = int(np.argmax(bad))
-            names = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "grip"]
             raise InvalidActionError(
                 f"action[{i}] ({names[i]}) = {a[i]!r} is outside [{box.low[i]:g}, {box.high[i]:g}]; the action "
-                f"bounds are low={box.low.tolist()} high={box.high.tolist()} (m, rad per step; grip -1..1)")
-        return np.clip(a, box.low, box.high)
+                f"bounds are low={box.low.tolist()} high={box.high.tolist()} ({units}); set out_of_bounds='clip' "
+                "to clip instead")
+        a = np.clip(a, box.low, box.high)
+        if self.config.action_mode == "normalized":
+            a = a * self.action_scale
+        return a, bool(np.any(bad))
 
     def _run(self, q_new: np.ndarray) -> None:
         """Stream joint targets (linear from the previous targets) and the gripper command for one period."""
