@@ -21,7 +21,7 @@ from typing import Any, Literal
 import numpy as np
 
 from torm import __version__
-from torm.config import to_dict
+from torm.config import check_finite, to_dict
 from torm.errors import ConfigError, ExecutionError, ReconstructionError, TormError, UnknownNameError
 from torm.execution.pick import PickConfig, execute_pick, free_directions
 from torm.execution.success import Outcome, SuccessCriteria
@@ -149,6 +149,7 @@ class TrialConfig:
     success: SuccessCriteria = field(default_factory=SuccessCriteria)
 
     def __post_init__(self) -> None:
+        check_finite(self, "TrialConfig")  # NaN / inf in any float field of any section (torm.config)
         if self.method not in METHODS:
             raise UnknownNameError("method", self.method, METHODS)
         if self.backend not in ("sim", "real"):

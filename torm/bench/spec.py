@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from torm.config import parse_override
+from torm.config import check_finite, parse_override
 from torm.errors import ConfigError, UnknownNameError
 
 METHODS: tuple[str, ...] = ("torm", "depth", "oracle")
@@ -116,6 +116,7 @@ class BenchConfig:
     threads: int = 0
 
     def __post_init__(self) -> None:
+        check_finite(self, "bench config")
         if self.trials < 1:
             raise ConfigError(f"trials must be >= 1, got {self.trials}")
         if self.workers < 1:
