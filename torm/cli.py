@@ -43,8 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     try:
         return int(args.func(args) or 0)
-    except TormError as exc:
-        log.error("%s", exc)
+    except TormError as exc:  # printed once, here; library code raises without logging it
         print(f"torm: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from torm.commands._common import add_overrides, print_json
+from torm.commands._common import add_overrides, check_output_file, print_json, write_json_file
 
 log = logging.getLogger(__name__)
 
@@ -59,15 +59,18 @@ def trial_config_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    from pathlib import Path
-
+    from torm.errors import OutputError
     from torm.pipeline import run_trial
 
     cfg = trial_config_from_args(args)
+    out = check_output_file(args.out, "--out") if args.out else None  # before the trial, not after it
+    if args.record:
+        check_output_file(args.record, "--record")
     result = run_trial(cfg, record=args.record)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(result, indent=2, default=str))
-    print_json(result)
+    print_json(result)  # first: the result is on stdout even if writing the file fails
+    if out is not None:
+        try:
+            write_json_file(out, result, "--out")
+        except OutputError as exc:
+            raise OutputError(f"{exc}; the result was printed on stdout") from exc
     return 0

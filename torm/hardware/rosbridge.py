@@ -423,7 +423,13 @@ class InovoArm:
             rel, qs, final = plan.chunk(now - w0)
             gid = f"{tid}.{k}"
             self._active_goal = gid
-            self.client.publish(f"{self.action_ns}/goal", self.goal_message(rel, qs, gid))
+            try:
+                self.client.publish(f"{self.action_ns}/goal", self.goal_message(rel, qs, gid))
+            except HardwareError as exc:
+                self._trip(f"streaming chunk {k} of trajectory {tid} failed ({exc})")
+                raise HardwareError(f"trajectory {tid}: the link failed while streaming ({exc}); the arm was stopped: "
+                                    f"it comes to rest on its own within {plan.stop_within_s:.2f} s of the last "
+                                    "chunk it received") from exc
             self.log.write("send_goal", topic=f"{self.action_ns}/goal", goal_id=gid, chunk=k, final=final,
                            t_plan=now - w0, n_points=len(rel), until_s=float(rel[-1]))
             sent.append(gid)
