@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import struct
 
-import numpy as np
 import pytest
-
 from fake_robotiq import FakeRobotiq, FakeRobotiqServer
 
 from torm.errors import HardwareError
