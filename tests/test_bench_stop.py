@@ -11,11 +11,10 @@ import sys
 import time
 from pathlib import Path
 
-from fake_robotiq import FakeRobotiq, FakeRobotiqServer
-from fake_rosbridge import ACTION, FakeRosbridge
-
 from sim.robot_config import load_robot_config
 from torm.bench.results import read_manifest, read_results
+from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
+from torm.testing.fake_rosbridge import ACTION, FakeRosbridge
 
 TESTS_DIR = str(Path(__file__).resolve().parent)
 
@@ -27,7 +26,7 @@ def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path):
     modbus = FakeRobotiqServer(gripper)
     hw = tmp_path / "hw.yaml"
     hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\nwatchdog_s: 2.0\ncommand_log: cmd.jsonl\n"
-                  f"gripper: {{device: '{modbus.url}'}}\n")
+                  f"gripper: {{device: '{modbus.url}'}}\nstream: {{horizon_s: 1.0}}\n")  # robust on a loaded machine
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "torm.cli", "bench", "--suite", "rw", "--scenario", "rw1", "--trials", "1",
            "--method", "torm", "--out", str(out), "--trial-fn", "bench_fake_trials:real_arm", "--backend", "real",

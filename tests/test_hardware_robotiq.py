@@ -1,12 +1,11 @@
 """Robotiq 2F-85 driver against an in-memory Modbus RTU gripper that parses frames, checks CRCs and moves
-(tests/fake_robotiq.py)."""
+(torm/testing/fake_robotiq.py)."""
 
 from __future__ import annotations
 
 import struct
 
 import pytest
-from fake_robotiq import FakeRobotiq, FakeRobotiqServer
 
 from torm.errors import HardwareError
 from torm.hardware.modbus import ModbusError, ModbusRTUClient, crc16, with_crc
@@ -17,6 +16,7 @@ from torm.hardware.robotiq import (
     force_to_byte,
     speed_to_byte,
 )
+from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
 
 
 def _gripper(fake: FakeRobotiq, cal: GripperCalibration | None = None, armed: bool = True) -> RobotiqGripper:
@@ -116,10 +116,9 @@ def test_unarmed_real_backend_activates_nothing_and_moves_no_finger(tmp_path):
     """make_real_backend with the gripper on a loopback Modbus server and the arm on the fake rosbridge."""
     from types import SimpleNamespace
 
-    from fake_rosbridge import FakeRosbridge
-
     from sim.robot_config import load_robot_config
     from torm.hardware import make_real_backend
+    from torm.testing.fake_rosbridge import FakeRosbridge
 
     rcfg = load_robot_config("inovo_2f85")
     fake = FakeRobotiq()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -66,5 +67,6 @@ def write_json_file(path: Path, obj: Any, flag: str = "--out") -> None:
         tmp.write_text(json.dumps(obj, indent=2, default=_default) + "\n")
         os.replace(tmp, path)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         raise OutputError(f"{flag} {path}: writing failed ({exc.strerror or exc})") from exc

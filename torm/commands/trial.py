@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
+from typing import Any
 
 from torm.commands._common import add_overrides, check_output_file, print_json, write_json_file
 
@@ -58,6 +60,11 @@ def trial_config_from_args(args: argparse.Namespace):
     return cfgmod.from_dict(TrialConfig, data, overrides + list(args.overrides), where=args.config or "TrialConfig")
 
 
+def _on_sigterm(signum: int, frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the backend's stop path must not be cut short
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
     from torm.errors import OutputError
     from torm.pipeline import run_trial
@@ -66,7 +73,11 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_file(args.out, "--out") if args.out else None  # before the trial, not after it
     if args.record:
         check_output_file(args.record, "--record")
-    result = run_trial(cfg, record=args.record)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)  # SIGTERM runs the trial's clean-up like Ctrl-C
+    try:
+        result = run_trial(cfg, record=args.record)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     print_json(result)  # first: the result is on stdout even if writing the file fails
     if out is not None:
         try:

@@ -1,4 +1,4 @@
-"""A rosbridge_server stand-in on loopback with a model of a ROS joint_trajectory_controller behind it.
+"""Test double: a rosbridge_server stand-in on loopback with a model of a ROS joint_trajectory_controller behind it.
 
 Speaks the JSON rosbridge v2 protocol: answers ``call_service`` for /robot/enable, /robot/disable and
 /robot/switch_controller, publishes /joint_states at 100 Hz to subscribers, takes FollowJointTrajectory

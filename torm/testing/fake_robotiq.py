@@ -1,4 +1,4 @@
-"""An in-memory Robotiq 2F-85 on an RS-485 line, and a loopback TCP server that puts it behind ``socket://``.
+"""Test double: an in-memory Robotiq 2F-85 on an RS-485 line, and a loopback TCP server that puts it behind ``socket://``.
 
 :class:`FakeRobotiq` parses Modbus RTU frames, checks CRCs, answers FC04/FC16 for its slave id and moves
 its fingers; :class:`FakeRobotiqServer` serves it on 127.0.0.1 so a backend opens it with
