@@ -170,6 +170,48 @@ def test_arm_stops_by_itself_when_the_link_dies_mid_trajectory(how):
         srv.close()
 
 
+def test_aborted_chunk_stops_the_motion(server):
+    """The controller aborts a chunk (e.g. its path tolerance was violated): the adapter stops streaming."""
+    arm = make_arm(server.port)
+    try:
+        server.abort_at_goal = 4
+        times, q = _long_move(arm.state().q)
+        t0 = time.monotonic()
+        with pytest.raises(HardwareError, match="ABORTED"):
+            arm.follow_trajectory(times, q)
+        assert time.monotonic() - t0 < 2.0 and 4 <= len(server.goals()) <= 6  # no more chunks after the abort
+    finally:
+        arm.close()
+
+
+def test_a_stream_that_falls_behind_brakes_to_a_stop(server, monkeypatch):
+    """The process stalls longer than the horizon (here: one wait of 1 s): the arm runs into the braking tail
+    of the last chunk and stops on the path; the adapter notices and abandons the motion."""
+    arm = make_arm(server.port)
+    try:
+        q0 = arm.state().q
+        times, q = _long_move(q0)
+        real_watch, calls = arm._watch_chunks, []
+
+        def stalling(*a):
+            calls.append(1)
+            if len(calls) == 5:
+                time.sleep(1.0)
+            return real_watch(*a)
+
+        monkeypatch.setattr(arm, "_watch_chunks", stalling)
+        with pytest.raises(HardwareError, match="beyond its 0.6 s horizon"):
+            arm.follow_trajectory(times, q)
+        t_last = server.msgs("publish", topic=f"{ACTION}/goal")
+        assert len(t_last) == 5  # nothing was sent after the stall (the cancel only)
+        time.sleep(max(0.0, server.controller.end_time() - time.monotonic()) + 0.05)
+        q_rest = server.controller.q_at(time.monotonic())
+        dense = interp_path(np.r_[0.0, times], np.vstack([q0, q]), np.linspace(0, times[-1], 20001))
+        assert np.min(np.max(np.abs(dense - q_rest), axis=1)) < 1e-3 and np.max(np.abs(q_rest - q[-1])) > 0.05
+    finally:
+        arm.close()
+
+
 def test_not_armed_refuses_and_sends_no_goal(server):
     log = CommandLog(None)
     arm = make_arm(server.port, armed=False, log=log)

@@ -21,7 +21,7 @@
 6. records the invocation as a "session" in the manifest (start, end, status, trials run, engine, pid).
 
 The summary lists every repair made to the folder (``repairs``): a cut-off last line, skipped corrupted
-or duplicated lines, a stale lock, sessions marked killed.
+or duplicated lines, a stale lock, sessions marked killed (each is also logged once, where it is made).
 
 Folder layout: ``manifest.json``, ``results.jsonl``, ``.lock``, ``logs/<key>.log`` (worker logs of failed
 trials), ``recordings/<key>.rrd`` (with ``record`` on), ``old-<time>/`` (what ``fresh`` moved aside).
@@ -130,6 +130,7 @@ def open_run(config: BenchConfig, out_dir: Path, ident: dict[str, Any], fresh: b
             repairs.append(f"session {sess.get('id')} (pid {sess.get('pid')} on {sess.get('host')}, started "
                            f"{sess.get('started')}) was killed mid-run; marked 'killed' (its last row: "
                            f"{sess.get('last_row') or 'none'})")
+            log.warning("%s: %s", out_dir, repairs[-1])
     manifest["config"] = config.as_dict()
     return manifest
 
@@ -239,8 +240,6 @@ def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest:
         session["status"] = status
         manifest["updated"] = session["finished"]
         write_json_atomic(out / MANIFEST_NAME, manifest)
-    for r in repairs:
-        log.warning("repaired: %s", r)
     return {"out": str(out), "trials_in_grid": len(grid), "already_done": n_done, "retried": retried,
             "ran": session["trials_run"], "failed_trials": failed, "objects": n_obj, "objects_success": n_ok,
             "success_rate": n_ok / n_obj if n_obj else None, "failure_categories_this_session": categories,

@@ -8,8 +8,9 @@ Example ``hardware.yaml`` (paths relative to the YAML's folder)::
     dry_run: false            # log planned motions, send nothing
     speed_scale: 0.25         # fraction of the joint speed/acceleration limits
     command_log: logs/hardware_commands.jsonl
-    gripper: {device: /dev/ttyUSB0, calibration: robotiq_cal.yaml}
+    gripper: {device: /dev/ttyUSB0, calibration: robotiq_cal.yaml}   # or socket://host:port (RS-485 gateway)
     camera: {hand_eye: hand_eye.yaml}
+    stream: {horizon_s: 0.3, period_s: 0.1}   # the arm stops by itself <= horizon + braking after the link dies
 
 Where the config comes from (:func:`resolve_hardware_config`): the trial config's
 ``hardware_config`` field when it has one, else the environment variable ``TORM_HARDWARE_CONFIG``.

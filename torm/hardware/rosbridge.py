@@ -412,7 +412,7 @@ class InovoArm:
         """Send the plan's chunks every ``period_s`` until the last one; returns the last chunk's goal id."""
         s = self.stream
         w0 = time.monotonic()
-        last_send, k, sent = w0, 0, []
+        last_send, k, replaced = w0, 0, set()  # replaced: chunks whose PREEMPTED result is still due
         while True:
             now = time.monotonic()
             if k and now - last_send > s.horizon_s - s.lead_s:
@@ -432,34 +432,31 @@ class InovoArm:
                                     "chunk it received") from exc
             self.log.write("send_goal", topic=f"{self.action_ns}/goal", goal_id=gid, chunk=k, final=final,
                            t_plan=now - w0, n_points=len(rel), until_s=float(rel[-1]))
-            sent.append(gid)
+            if k:
+                replaced.add(f"{tid}.{k - 1}")
             last_send, k = now, k + 1
             if final:
                 return gid
-            self._watch_chunks(sent[:-1], last_send + s.period_s, tid)
+            self._watch_chunks(replaced, last_send + s.period_s, tid)
 
-    def _watch_chunks(self, replaced: list[str], until: float, tid: str) -> None:
+    def _watch_chunks(self, replaced: set[str], until: float, tid: str) -> None:
         """Wait until monotonic ``until``; HardwareError on a fault or a result other than PREEMPTED for a
         replaced chunk (a replaced chunk that SUCCEEDED means the arm ran into its braking tail)."""
         with self._result_cv:
             while True:
                 self._check_ok("follow_trajectory")
-                for gid in replaced:
-                    msg = self._results.pop(gid, None)
-                    if msg is None:
-                        continue
-                    replaced.remove(gid)
+                for gid in [g for g in replaced if g in self._results]:
+                    replaced.discard(gid)
+                    msg = self._results.pop(gid)
                     status = int((msg.get("status") or {}).get("status", -1))
                     if status != PREEMPTED:
                         text = (msg.get("status") or {}).get("text", "")
                         raise HardwareError(f"trajectory {tid}: chunk {gid} ended {STATUS_NAMES.get(status, status)} "
                                             f"while the next one was streamed ({text!r}); the motion was stopped")
-                    break
-                else:
-                    left = until - time.monotonic()
-                    if left <= 0:
-                        return
-                    self._result_cv.wait(min(left, 0.05))
+                left = until - time.monotonic()
+                if left <= 0:
+                    return
+                self._result_cv.wait(min(left, 0.05))
 
     def _wait_result(self, gid: str, deadline: float) -> dict[str, Any]:
         with self._result_cv:

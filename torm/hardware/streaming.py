@@ -131,10 +131,9 @@ class StreamPlan:
         t_c = self.duration_s if final else t_now + s.horizon_s
         if t0 >= t_c:  # less than lead_s of motion left: one point at the end
             return np.array([max(s.lead_s, t_c - t_now)]), self.knots_q[-1:].copy(), True
-        knots = self.knots_t[(self.knots_t >= t0 - MIN_SPACING_S) & (self.knots_t <= t_c + MIN_SPACING_S)]
+        knots = self.knots_t[(self.knots_t >= t0 - MIN_SPACING_S) & (self.knots_t <= t_c)]  # never beyond t_c
         ts = _merge(np.array([t0, t_c]), knots)
-        ts = ts[(ts >= t0 - MIN_SPACING_S) & (ts <= t_c + MIN_SPACING_S)]
-        t_c = float(ts[-1])
+        t_c = float(ts[-1])  # a knot just below t_c replaces it: the chunk never outlasts stop_within_s
         qs = interp_path(self.knots_t, self.knots_q, ts)
         rel = ts - t_now
         if final:

@@ -89,6 +89,7 @@ class FakeRosbridge:
         self.received_at: list[float] = []
         self.answering = True
         self.publishing = True
+        self.abort_at_goal: int | None = None  # abort (and hold) when this many goals arrived: a tracking fault
         self.history: list[tuple[float, np.ndarray]] = []  # (t, q) of the modelled arm at the publish rate
         self._period = 1.0 / rate_hz
         self._conns: list = []
@@ -167,6 +168,10 @@ class FakeRosbridge:
                     prev = self.controller.accept(msg["msg"], t)
                     if prev is not None:
                         self._result(prev, 2)  # PREEMPTED
+                    if self.abort_at_goal is not None and len(self.goals()) >= self.abort_at_goal:
+                        self.abort_at_goal = None
+                        gid = self.controller.cancel(t)  # path tolerance violated: hold where it is
+                        self._result(gid, 4)  # ABORTED
                 elif op == "publish" and msg["topic"] == f"{ACTION}/cancel":
                     prev = self.controller.cancel(t)
                     if prev is not None:
