@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import threading
 from typing import Any
 
 from torm.commands._common import add_overrides, check_output_file, print_json, write_json_file
@@ -73,11 +74,13 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_file(args.out, "--out") if args.out else None  # before the trial, not after it
     if args.record:
         check_output_file(args.record, "--record")
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)  # SIGTERM runs the trial's clean-up like Ctrl-C
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if main_thread else None  # clean-up on SIGTERM too
     try:
         result = run_trial(cfg, record=args.record)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
     print_json(result)  # first: the result is on stdout even if writing the file fails
     if out is not None:
         try:
