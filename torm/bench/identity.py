@@ -39,9 +39,14 @@ def git_state(cwd: str | Path | None = None) -> dict[str, Any]:
     ``diff_sha256`` hashes ``git diff HEAD`` (tracked files only), so two different uncommitted states of
     the same commit are told apart; None when the tree is clean.
     """
-    where = Path(cwd) if cwd is not None else Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parents[1]  # .../torm
+    where = Path(cwd) if cwd is not None else package
     none = {"commit": None, "dirty": None, "diff_sha256": None}
     try:
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=where, capture_output=True, text=True,
+                             timeout=10)
+        if top.returncode != 0 or (cwd is None and Path(top.stdout.strip()).resolve() != package.parent):
+            return none  # not a checkout of torm (e.g. installed into another project's repository)
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=10)
         if sha.returncode != 0:
             return none
