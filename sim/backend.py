@@ -193,6 +193,12 @@ class SimArm:
         mujoco.mj_kinematics(self._fk_model, self._fk_data)
         return _site_pose(self._fk_data, self._fk_tcp)
 
+    def tcp_lever_arms(self) -> np.ndarray | None:
+        """(n,) m/rad bounds on the TCP's distance from each joint axis, for the safety layer's path proof."""
+        from torm.backend.safety import lever_arms_from_mujoco
+
+        return lever_arms_from_mujoco(self._fk_model, self.joint_names, self._sim.rcfg.arm.tcp_site)
+
     def follow_trajectory(self, times_s: np.ndarray, q_txn: np.ndarray) -> ArmState:
         """Stream ``q_txn`` (T, n) rad at ``times_s`` (T,) s from now (linear interpolation between samples,
         starting from the current targets), then hold the last target until the arm is at rest."""

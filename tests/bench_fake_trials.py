@@ -6,6 +6,7 @@ behaviour is steered by ``--set fake.<what>=...`` overrides (a list of ``scenari
 
 - ``fake.sleep_s``: seconds every trial sleeps first;
 - ``fake.hang``: sleep for an hour; ``fake.crash``: ``os._exit(3)``; ``fake.segv``: SIGSEGV itself;
+- ``fake.crash_once``: a marker file path; crash (``os._exit(3)``) when it does not exist yet, creating it;
 - ``fake.raise``: raise RuntimeError; ``fake.physics``: raise an exception class named PhysicsError;
 - ``fake.blowup``: return a record whose failure is ``physics_error`` (what run_trial does).
 
@@ -55,6 +56,9 @@ def run(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = No
         time.sleep(3600)
     if _hit(spec, opts.get("crash")):
         os._exit(3)
+    if opts.get("crash_once") and not os.path.exists(opts["crash_once"]):
+        open(opts["crash_once"], "w").close()
+        os._exit(3)
     if _hit(spec, opts.get("segv")):
         os.kill(os.getpid(), signal.SIGSEGV)
     if _hit(spec, opts.get("raise")):
@@ -90,3 +94,26 @@ def run(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = No
     return {"scenario": spec.scenario, "seed": spec.seed, "method": spec.method, "config": {"fake": opts},
             "versions": {"fake": "1"}, "timings": timings, "perception": perception, "objects": objects,
             "failure": failure, "n_objects": n, "n_success": n_success, "success_rate": n_success / n if n else 0.0}
+
+
+def real_arm(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = None) -> dict[str, Any]:
+    """A trial on the real backend (``--backend real``) that moves the arm slowly for ``fake.move_s`` seconds.
+
+    Builds the backend exactly as a trial does (``make_real_backend`` from the resolved trial config) and
+    closes it in ``finally`` like ``run_trial``: the stop path a SIGTERMed worker must run.
+    """
+    from torm.bench.trial import trial_config
+    from torm.execution.trajectory import min_jerk_segment
+    from torm.hardware import make_real_backend
+
+    opts = _options(overrides)
+    config = trial_config(spec, tuple(o for o in overrides if not o.startswith("fake.")))
+    backend = make_real_backend(config)
+    try:
+        q0 = backend.arm.state().q
+        times, q = min_jerk_segment(q0, q0 + np.array([0.3, -0.1, 0.1, 0.0, 0.1, 0.0]),
+                                    float(opts.get("move_s", 30.0)), 0.05)
+        backend.arm.follow_trajectory(times, q)
+    finally:
+        backend.close()
+    return {"objects": [{"object_id": 1, "name": spec.objects[0], "outcome": "success", "message": ""}]}

@@ -102,3 +102,102 @@ def test_safety_limits_validation():
         _limits(q_max=(1.0,))
     with pytest.raises(ConfigError, match="joints"):
         SafeArm(_FakeArm(), _limits(q_min=(-1.0,), q_max=(1.0,), qd_max=(1.0,), qdd_max=(1.0,)))
+
+
+class _BowlArm(_FakeArm):
+    """Two joints; the TCP height is a parabola in joint 0: z = 0.45 q0^2 - 0.1 + 0.5 q1 (m).
+
+    Lever arms (m/rad) for |q0| <= 1: |dp/dq0| = |(0.3, 0, 0.9 q0)| <= 0.95, |dp/dq1| = 0.5.
+    """
+
+    LEVER_ARMS = (0.95, 0.5)
+
+    def forward_kinematics(self, q):
+        T = np.eye(4)
+        T[:3, 3] = [0.3 * q[0], 0.0, 0.45 * q[0] ** 2 - 0.1 + 0.5 * q[1]]
+        return T
+
+
+@pytest.mark.parametrize("lever_arms", [_BowlArm.LEVER_ARMS, ()], ids=["proof", "dense-fallback"])
+def test_path_dipping_below_the_table_between_waypoints_is_refused(lever_arms):
+    arm = _BowlArm()
+    arm.q = np.array([-0.6, 0.0])  # TCP 6.2 cm above the table
+    safe = SafeArm(arm, _limits(workspace_min=(-0.6, -0.6, 0.0), tcp_lever_arms=lever_arms))
+    end = np.array([[0.6, 0.0]])  # also 6.2 cm above; the straight joint path between dips to -10 cm
+    assert arm.forward_kinematics(end[0])[2, 3] > 0.06
+    with pytest.raises(SafetyError, match="between waypoints"):
+        safe.follow_trajectory(np.array([3.0]), end)
+    # the waypoints-only check the layer used to do would have let it through
+    assert all(arm.forward_kinematics(q)[2, 3] > 0 for q in (arm.q, end[0]))
+    # lifting joint 1 on the way keeps the whole path above the table: accepted
+    times = np.linspace(0.5, 6.0, 12)
+    up = np.stack([np.interp(times, [0, 3, 6], [-0.6, 0.0, 0.6]), np.interp(times, [0, 3, 6], [0.0, 0.3, 0.0])], 1)
+    safe.follow_trajectory(times, up)
+    assert len(arm.sent) == 1 and arm.sent[0][1][0, 1] != 0.0
+
+
+def test_path_proof_accepts_only_paths_inside_and_every_path_with_margin():
+    """Random segments near the table: an accepted one is inside everywhere (2001 samples); a refused one
+    comes within path_resolution / 2 of the table (so every path keeping that margin is accepted)."""
+    rng = np.random.default_rng(0)
+    lim = _limits(workspace_min=(-0.6, -0.6, 0.0), tcp_lever_arms=_BowlArm.LEVER_ARMS, path_resolution=0.002)
+    fk = _BowlArm().forward_kinematics
+    n_acc = n_ref = 0
+    for _ in range(300):
+        qa, qb = rng.uniform([-0.8, 0.05], [0.8, 0.4]), rng.uniform([-0.8, 0.05], [0.8, 0.4])
+        qa[1] = max(qa[1], 0.21 - 0.9 * qa[0] ** 2 + 0.002)  # both ends inside the box
+        qb[1] = max(qb[1], 0.21 - 0.9 * qb[0] ** 2 + 0.002)
+        if np.max(np.abs(qb - qa)) < 1e-3:
+            continue
+        qs = qa + (qb - qa) * np.linspace(0, 1, 2001)[:, None]
+        z = 0.45 * qs[:, 0] ** 2 - 0.1 + 0.5 * qs[:, 1]  # _BowlArm's TCP height, vectorised
+        try:
+            lim.check_path_in_box(np.stack([qa, qb]), fk, np.asarray(_BowlArm.LEVER_ARMS))
+            accepted = True
+        except SafetyError:
+            accepted = False
+        if accepted:
+            assert z.min() >= 0.0
+            n_acc += 1
+        else:
+            assert z.min() < lim.path_resolution / 2
+            n_ref += 1
+    assert n_acc > 50 and n_ref > 20  # both cases were exercised
+
+
+def test_path_check_starts_at_the_current_position():
+    arm = _BowlArm()
+    arm.q = np.array([0.0, 0.0])  # TCP at z = -0.1: outside the box already
+    safe = SafeArm(arm, _limits(workspace_min=(-0.6, -0.6, 0.0), tcp_lever_arms=_BowlArm.LEVER_ARMS))
+    with pytest.raises(SafetyError, match="outside the workspace box now"):
+        safe.follow_trajectory(np.array([2.0]), np.array([[0.0, 0.4]]))
+
+
+def test_lever_arms_bound_the_inovo_jacobian():
+    """lever_arms_from_mujoco bounds every column of the TCP Jacobian over random configurations."""
+    import mujoco
+
+    from sim.robot_config import load_robot_config
+    from torm.backend.safety import lever_arms_from_mujoco
+
+    rcfg = load_robot_config("inovo_2f85")
+    m = mujoco.MjModel.from_xml_path(str(rcfg.mjcf))
+    r = lever_arms_from_mujoco(m, tuple(rcfg.arm.joints), rcfg.arm.tcp_site)
+    assert r is not None and np.all(np.diff(r) <= 1e-12)  # the chain shortens towards the wrist
+    d = mujoco.MjData(m)
+    qadr = [m.jnt_qposadr[m.joint(j).id] for j in rcfg.arm.joints]
+    dadr = [m.jnt_dofadr[m.joint(j).id] for j in rcfg.arm.joints]
+    sid = m.site(rcfg.arm.tcp_site).id
+    rng = np.random.default_rng(1)
+    worst = np.zeros(len(r))
+    for _ in range(300):
+        d.qpos[qadr] = rng.uniform(-np.pi, np.pi, len(r))
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        jac = np.zeros((3, m.nv))
+        mujoco.mj_jacSite(m, d, jac, None, sid)
+        worst = np.maximum(worst, np.linalg.norm(jac[:, dadr], axis=0))
+    assert np.all(worst <= r + 1e-9) and worst[0] > 0.5 * r[0]  # a bound, and not a vacuous one
+    # not a serial hinge chain: no bound (the path check then falls back to dense sampling)
+    assert lever_arms_from_mujoco(m, tuple(rcfg.arm.joints)[::-1], rcfg.arm.tcp_site) is None  # out of order
+    assert lever_arms_from_mujoco(m, (*rcfg.arm.joints, "gripper_left_finger"), rcfg.arm.tcp_site) is None

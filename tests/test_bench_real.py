@@ -29,7 +29,8 @@ def test_real_trial_same_seed_same_row(tmp_path):
     assert set(ra["timings"]) >= {"setup", "capture", "reconstruction", "grasp_planning", "total"}
     assert comparable(ra) == comparable(rb)
     trial_config = read_manifest(tmp_path / "a")["trial_config"]  # the resolved base config
-    assert (trial_config["capture"]["n_views"], trial_config["capture"]["scale"]) == (2, 0.25)
+    assert {k: trial_config["capture"][k] for k in ("n_views", "scale")} == {"n_views": 2, "scale": 0.25}
+    assert read_manifest(tmp_path / "a")["identity"]["trial_config"] == trial_config  # the run identity holds it
     rec = Path(rb["run"]["recording"])
     assert rec.exists() and rec.stat().st_size > 1000
 

@@ -113,3 +113,35 @@ def test_diff_and_comparable():
     row = {"key": "k", "run": {"wall_s": 3}, "timings": {"total": 1}, "versions": {},
            "perception": {"reconstruction_s": 2.0, "iou": 0.9}, "objects": [{"pick": {"duration_s": 1, "ok": 1}}]}
     assert comparable(row) == {"key": "k", "perception": {"iou": 0.9}, "objects": [{"pick": {"ok": 1}}]}
+
+
+def test_a_later_attempt_replaces_a_row_and_the_old_one_becomes_history(tmp_path):
+    p = tmp_path / "results.jsonl"
+    append_row(p, {"key": "a", "status": "crashed"})
+    append_row(p, {"key": "b", "status": "ok"})
+    append_row(p, {"key": "a", "status": "timeout", "attempt": 2})
+    append_row(p, {"key": "a", "status": "ok", "attempt": 3})
+    append_row(p, {"key": "a", "status": "ok", "attempt": 3})  # the same attempt twice: a real duplicate
+    res = read_results(p)
+    assert [(r["key"], r["status"]) for r in res.rows] == [("a", "ok"), ("b", "ok")]  # file order of first sight
+    assert [r["status"] for r in res.history] == ["crashed", "timeout"] and res.duplicates == ["a"]
+
+
+def test_run_lock_refuses_a_second_holder_and_detects_a_stale_one(tmp_path):
+    import json as _json
+    import os
+    import subprocess
+    import sys
+
+    from torm.bench.lock import RunLock
+
+    with RunLock(tmp_path) as first:
+        assert first.stale is None
+        with pytest.raises(BenchmarkError, match=f"in use by another torm bench: pid {os.getpid()} on "):
+            RunLock(tmp_path).acquire()
+    assert (tmp_path / ".lock").read_text() == ""  # released: no holder left behind
+    # a holder that died without releasing (its record is still there): taken over and reported
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (tmp_path / ".lock").write_text(_json.dumps({"pid": int(dead.stdout), "host": "h", "started": "t"}))
+    with RunLock(tmp_path) as lock:
+        assert lock.stale["pid"] == int(dead.stdout)

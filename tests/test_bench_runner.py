@@ -142,7 +142,10 @@ def test_sigkilled_run_resumes_with_exactly_one_row_per_trial(tmp_path):
     assert len(keys) == 9 and sorted(keys) == sorted(f"rw/rw{i}/{t}/torm" for i in (1, 2, 3) for t in range(3))
     assert len(list(out.glob("results.jsonl.truncated-*"))) == 1
     sessions = read_manifest(out)["sessions"]
-    assert [s["status"] for s in sessions] == ["running", "finished"]  # the killed session never finished
+    assert [s["status"] for s in sessions] == ["killed", "finished"]  # marked when the next bench resumed
+    repairs = "\n".join(summary["repairs"])
+    assert "session 1" in repairs and "killed mid-run" in repairs  # the summary lists every repair it made
+    assert "incomplete last line" in repairs and "stale lock" in repairs and f"pid {proc.pid}" in repairs
 
 
 def test_changed_config_is_refused_with_the_difference(tmp_path):
@@ -151,7 +154,8 @@ def test_changed_config_is_refused_with_the_difference(tmp_path):
     with pytest.raises(BenchmarkError) as exc:
         run_benchmark(_cfg(trials=1, overrides=("fake.sleep_s=0.01",), timeout_s=7.0), out, progress=False)
     msg = str(exc.value)
-    assert "overrides: [] -> ['fake.sleep_s=0.01']" in msg and "timeout_s: 20.0 -> 7.0" in msg and "--fresh" in msg
+    assert "bench.overrides: [] -> ['fake.sleep_s=0.01']" in msg and "bench.timeout_s: 20.0 -> 7.0" in msg
+    assert "--fresh" in msg
     assert len(_rows(out)) == 4  # nothing touched
     # extending the grid is not a config change: only the new trials run
     s = run_benchmark(_cfg(trials=2), out, progress=False)
@@ -182,3 +186,90 @@ def test_recordings_kept_for_failures_only(tmp_path):
         assert (r["run"]["recording"] is not None) == (k in failed)
     run_benchmark(_cfg(methods=("torm",), scenarios=("rw1",), trials=4, record="all"), tmp_path / "a", progress=False)
     assert len(list((tmp_path / "a" / "recordings").glob("*.rrd"))) == 4
+
+
+def test_changed_default_refuses_resume_with_a_diff(tmp_path, monkeypatch):
+    """The identity is the fully resolved trial config: a default that changed between two invocations (no
+    override changed) is refused, and so is a different code version."""
+    import bench_fake_resolved
+
+    from torm.bench import identity as ident_mod
+
+    out = tmp_path / "r"
+    cfg = _cfg(trials=1, scenarios=("rw1",), methods=("torm",), trial_fn="bench_fake_resolved:run")
+    run_benchmark(cfg, out, progress=False)
+    man = read_manifest(out)
+    assert man["identity"]["trial_config"]["pick"]["grip_force"] == 130.0
+    assert set(man["identity"]["code"]) == {"git", "packages"} and "numpy" in man["identity"]["code"]["packages"]
+    monkeypatch.setitem(bench_fake_resolved.DEFAULTS, "pick", {"grip_force": 40.0})
+    with pytest.raises(BenchmarkError, match=r"trial_config\.pick\.grip_force: 130\.0 -> 40\.0"):
+        run_benchmark(cfg, out, progress=False)
+    monkeypatch.setitem(bench_fake_resolved.DEFAULTS, "pick", {"grip_force": 130.0})
+    real = ident_mod.code_version()
+    monkeypatch.setattr(ident_mod, "code_version", lambda: {**real, "git": {**real["git"], "commit": "0" * 40}})
+    with pytest.raises(BenchmarkError, match=r"code\.git\.commit: .* -> '0000"):
+        run_benchmark(cfg, out, progress=False)
+    monkeypatch.setattr(ident_mod, "code_version", lambda: real)
+    assert run_benchmark(cfg, out, progress=False)["already_done"] == 1  # the original config and code resume
+
+
+def test_default_trial_identity_holds_every_resolved_field():
+    from torm.bench.identity import run_identity
+    from torm.bench.runner import bench_identity
+    from torm.bench.trial import check_overrides
+
+    cfg = BenchConfig(suite="rw", overrides=("capture.n_views=4",))
+    ident = run_identity(bench_identity(cfg, check_overrides(cfg.overrides)), check_overrides(cfg.overrides))
+    tc = ident["trial_config"]
+    assert tc["pick"]["grip_force"] == 130.0 and tc["success"]["slip_tolerance"] == 0.02  # defaults, not overrides
+    assert tc["capture"]["n_views"] == 4 and "overrides" not in ident["bench"]
+    assert ident["bench"] == {"suite": "rw", "trial_fn": "torm.bench.trial:run_spec", "base_seed": 0,
+                              "timeout_s": 1800.0}
+
+
+def test_second_bench_on_the_same_folder_is_refused(tmp_path):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "torm.cli", "bench", "--suite", "rw", "--scenario", "rw1", "--trials", "6",
+           "--method", "torm", "--workers", "1", "--out", str(out), "--trial-fn", FAKE, "--set", "fake.sleep_s=1.0",
+           "--no-progress", "--stop-grace", "5"]  # >= 6 s of trials: still running while the others try
+    first = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (out / "manifest.json").exists():
+            time.sleep(0.05)
+        with pytest.raises(BenchmarkError, match=f"in use by another torm bench: pid {first.pid} on "):
+            run_benchmark(_cfg(scenarios=("rw1",), trials=6, methods=("torm",), workers=1,
+                               overrides=("fake.sleep_s=1.0",)), out, progress=False)
+        second = subprocess.run(cmd, capture_output=True, text=True, timeout=60)  # the CLI says so once
+        assert second.returncode == 2 and second.stderr.count(f"pid {first.pid}") == 1
+    finally:
+        first.send_signal(signal.SIGTERM)
+        _, err = first.communicate(timeout=60)
+    assert first.returncode == 130, err  # stopped cleanly by SIGTERM
+    sessions = read_manifest(out)["sessions"]
+    assert [s["status"] for s in sessions] == ["interrupted"] and (out / ".lock").read_text() == ""
+    # the folder is free again (a clean stop leaves no stale lock); a smaller grid resumes without a config change
+    s = run_benchmark(_cfg(scenarios=("rw1",), trials=1, methods=("torm",), workers=1, timeout_s=1800.0,
+                           overrides=("fake.sleep_s=1.0",)), out, progress=False)
+    assert s["ran"] + s["already_done"] == 1 and not any("stale" in r for r in s["repairs"])
+
+
+def test_retry_failed_replaces_a_crashed_row_and_keeps_it_as_history(tmp_path):
+    marker = tmp_path / "crashed-once"
+    cfg = _cfg(scenarios=("rw1",), trials=2, methods=("torm",), workers=1, overrides=(f"fake.crash_once={marker}",))
+    out = tmp_path / "r"
+    run_benchmark(cfg, out, progress=False)
+    rows = _rows(out)
+    crashed = [k for k, r in rows.items() if r["status"] == "crashed"]
+    assert len(crashed) == 1 and "exited with code 3" in rows[crashed[0]]["message"]
+    assert run_benchmark(cfg, out, progress=False)["ran"] == 0  # a plain resume keeps the crashed row
+    s = run_benchmark(cfg, out, progress=False, retry="failed")
+    assert s["retried"] == crashed and s["ran"] == 1
+    res = read_results(out / "results.jsonl")
+    new = {r["key"]: r for r in res.rows}[crashed[0]]
+    assert new["status"] == "ok" and new["attempt"] == 2 and new["retry_of"]["status"] == "crashed"
+    assert [r["key"] for r in res.history] == crashed and res.history[0]["status"] == "crashed"
+    assert len((out / "results.jsonl").read_text().splitlines()) == 3 and not res.duplicates
+    assert run_benchmark(cfg, out, progress=False, retry="failed")["ran"] == 0  # nothing failed any more
+    with pytest.raises(Exception, match="retry"):
+        run_benchmark(cfg, out, progress=False, retry="everything")

@@ -1,116 +1,27 @@
-"""Robotiq 2F-85 driver against an in-memory Modbus RTU gripper that parses frames, checks CRCs and moves."""
+"""Robotiq 2F-85 driver against an in-memory Modbus RTU gripper that parses frames, checks CRCs and moves
+(torm/testing/fake_robotiq.py)."""
 
 from __future__ import annotations
 
 import struct
 
-import numpy as np
 import pytest
 
 from torm.errors import HardwareError
-from torm.hardware.modbus import ModbusError, ModbusRTUClient, check_crc, crc16, with_crc
+from torm.hardware.modbus import ModbusError, ModbusRTUClient, crc16, with_crc
 from torm.hardware.robotiq import (
-    ACTION_REGISTER,
     STATUS_REGISTER,
     GripperCalibration,
     RobotiqGripper,
     force_to_byte,
     speed_to_byte,
 )
+from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
 
 
-class FakeRobotiq:
-    """A 2F-85 on an RS-485 line: a byte transport (``write``/``read``) that answers FC04/FC16 for slave 9.
-
-    Finger position ``po`` moves towards the request by ``1 + rSP // 32`` counts per status read, between
-    the mechanical endpoints ``open_end``/``closed_end``; an object blocks closing at ``object_at``.
-    """
-
-    def __init__(self, slave: int = 9, open_end: int = 3, closed_end: int = 230, object_at: int | None = None,
-                 silent: bool = False) -> None:
-        self.slave, self.open_end, self.closed_end, self.object_at = slave, open_end, closed_end, object_at
-        self.silent = silent
-        self.action = [0, 0, 0, 0, 0, 0]  # bytes written at 0x03E8
-        self.writes: list[list[int]] = []  # register triplets written
-        self.po = 120
-        self.sta = 0
-        self.obj = 0
-        self.act_reads = 0
-        self.out = b""
-        self.bad_crc_frames = 0
-
-    # transport interface
-    def reset_input_buffer(self) -> None:
-        self.out = b""
-
-    def read(self, n: int) -> bytes:
-        chunk, self.out = self.out[:n], self.out[n:]
-        return chunk
-
-    def write(self, frame: bytes) -> int:
-        if self.silent:
-            return len(frame)
-        if not check_crc(frame):
-            self.bad_crc_frames += 1
-            return len(frame)
-        slave, fc = frame[0], frame[1]
-        if slave != self.slave:
-            return len(frame)
-        if fc == 0x10:
-            addr, n, nbytes = struct.unpack(">HHB", frame[2:7])
-            data = frame[7:7 + nbytes]
-            if addr != ACTION_REGISTER or n != 3 or nbytes != 6:
-                self.out = with_crc(bytes([slave, 0x90, 2]))
-                return len(frame)
-            self.writes.append(list(struct.unpack(">3H", data)))
-            prev_act = self.action[0] & 1
-            self.action = list(data)
-            if not (self.action[0] & 1):
-                self.sta, self.obj = 0, 0
-            elif not prev_act:
-                self.sta, self.act_reads = 1, 0
-            if self.action[0] & 0x08:
-                self.obj = 0  # a new go-to starts moving
-            self.out = with_crc(frame[:6])
-        elif fc == 0x04:
-            addr, n = struct.unpack(">HH", frame[2:6])
-            if addr != STATUS_REGISTER or n != 3:
-                self.out = with_crc(bytes([slave, 0x84, 2]))
-                return len(frame)
-            self._step()
-            status = (self.action[0] & 1) | (self.action[0] & 0x08) | (self.sta << 4) | (self.obj << 6)
-            body = bytes([status, 0, 0, self.action[3], self.po, 12])
-            self.out = with_crc(bytes([slave, 0x04, 6]) + body)
-        else:
-            self.out = with_crc(bytes([slave, fc | 0x80, 1]))
-        return len(frame)
-
-    def _step(self) -> None:
-        if self.sta == 1:
-            self.act_reads += 1
-            if self.act_reads >= 3:
-                self.sta, self.po = 3, self.open_end
-            return
-        if self.sta != 3 or not (self.action[0] & 0x08) or self.obj != 0:
-            return
-        target = int(np.clip(self.action[3], self.open_end, self.closed_end))
-        step = 1 + self.action[4] // 32
-        if self.po < target:
-            nxt = min(target, self.po + step)
-            if self.object_at is not None and self.po < self.object_at <= nxt:
-                self.po, self.obj = self.object_at, 2
-                return
-            self.po = nxt
-        elif self.po > target:
-            self.po = max(target, self.po - step)
-        if self.po == target:
-            # reached the request, or stopped at a mechanical endpoint beyond which the request lies
-            self.obj = 3
-
-
-def _gripper(fake: FakeRobotiq, cal: GripperCalibration | None = None) -> RobotiqGripper:
+def _gripper(fake: FakeRobotiq, cal: GripperCalibration | None = None, armed: bool = True) -> RobotiqGripper:
     return RobotiqGripper(ModbusRTUClient(fake, slave=9, port_label="fake"), cal, poll_s=0.0, move_timeout_s=2.0,
-                          activate_timeout_s=2.0)
+                          activate_timeout_s=2.0, armed=armed)
 
 
 def test_crc16_matches_the_modbus_reference():
@@ -188,3 +99,48 @@ def test_wrong_slave_id_times_out_and_exception_responses_raise():
         client.read_input_registers(STATUS_REGISTER, 3)
     with pytest.raises(ModbusError, match="exception 2"):
         ModbusRTUClient(fake, slave=9).read_input_registers(0x1234, 3)
+
+
+def test_unarmed_gripper_writes_nothing_that_moves_the_fingers():
+    fake = FakeRobotiq()
+    log = []
+    g = RobotiqGripper(ModbusRTUClient(fake, slave=9), poll_s=0.0, command_log=lambda k, p: log.append(k))
+    for action in (g.activate, lambda: g.move(0.02), g.calibrate):
+        with pytest.raises(HardwareError, match="not armed"):
+            action()
+    assert fake.writes == [] and log == ["refused"] * 3
+    assert g.state().width == pytest.approx(GripperCalibration().count_to_width(120))  # reading is fine
+
+
+def test_unarmed_real_backend_activates_nothing_and_moves_no_finger(tmp_path):
+    """make_real_backend with the gripper on a loopback Modbus server and the arm on the fake rosbridge."""
+    from types import SimpleNamespace
+
+    from sim.robot_config import load_robot_config
+    from torm.hardware import make_real_backend
+    from torm.testing.fake_rosbridge import FakeRosbridge
+
+    rcfg = load_robot_config("inovo_2f85")
+    fake = FakeRobotiq()
+    modbus, ros = FakeRobotiqServer(fake), FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
+    hw = tmp_path / "hw.yaml"
+    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\ncommand_log: cmd.jsonl\ngripper: {{device: '{modbus.url}'}}\n")
+    try:
+        backend = make_real_backend(SimpleNamespace(robot="inovo_2f85", hardware_config=str(hw), arm_robot=False))
+        try:
+            with pytest.raises(HardwareError, match="not armed"):
+                backend.gripper.move(0.02)
+            assert backend.gripper.state().width > 0  # the status is read over the link
+        finally:
+            backend.close()
+        assert fake.writes == [] and ros.msgs("call_service") == [] and ros.goals() == []
+        # armed, the same backend activates the gripper on start and moves its fingers
+        backend = make_real_backend(SimpleNamespace(robot="inovo_2f85", hardware_config=str(hw), arm_robot=True))
+        try:
+            backend.gripper.move(0.04)
+        finally:
+            backend.close()
+        assert fake.writes[:2] == [[0, 0, 0], [0x0100, 0, 0]] and fake.finger_writes()
+    finally:
+        modbus.close()
+        ros.close()

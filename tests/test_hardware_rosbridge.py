@@ -1,14 +1,12 @@
-"""The real-arm adapter against a fake rosbridge server on loopback speaking the JSON rosbridge v2 protocol.
+"""The real-arm adapter against a fake rosbridge server on loopback (torm/testing/fake_rosbridge.py) whose
+controller model executes the streamed FollowJointTrajectory chunks in wall time.
 
-The fake answers ``call_service`` for /robot/enable, /robot/disable and /robot/switch_controller,
-publishes /joint_states at 100 Hz to subscribers, accepts FollowJointTrajectory goals on the actionlib
-``.../goal`` topic, "moves" to the last point after ``time_scale`` x the trajectory duration and
-publishes the result. Tests check the exact messages the adapter sends.
+Tests check the exact messages the adapter sends and what the modelled arm does with them, including
+when the link goes silent in the middle of a motion.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import socket
 import threading
@@ -16,7 +14,6 @@ import time
 
 import numpy as np
 import pytest
-from websockets.sync.server import serve
 
 from sim.robot_config import load_robot_config
 from torm.backend.safety import SafetyError
@@ -24,108 +21,31 @@ from torm.errors import HardwareError
 from torm.hardware.command_log import CommandLog
 from torm.hardware.config import GripperSettings, HardwareConfig, RealCaptureSettings
 from torm.hardware.rosbridge import InovoArm, MujocoKinematics, ros_duration
+from torm.hardware.streaming import StreamSettings, interp_path
+from torm.testing.fake_rosbridge import ACTION, FakeRosbridge
 from torm.types import CameraView
 
-ACTION = "/robot/joint_trajectory_controller/follow_joint_trajectory"
 RCFG = load_robot_config("inovo_2f85")
 JOINTS = tuple(RCFG.arm.joints)
 
 
-class FakeRosbridge:
-    """A rosbridge_server stand-in (127.0.0.1, ephemeral port) recording every message it receives."""
-
-    def __init__(self, q0: np.ndarray, time_scale: float = 0.05, hold_result: bool = False) -> None:
-        self.q = np.asarray(q0, float).copy()
-        self.time_scale = time_scale
-        self.hold_result = hold_result
-        self.received: list[dict] = []
-        self.publishing = True
-        self._conns: list = []
-        self._lock = threading.Lock()
-        self._server = serve(self._handler, "127.0.0.1", 0)
-        self.port = self._server.socket.getsockname()[1]
-        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
-        self._thread.start()
-
-    def msgs(self, op: str | None = None, **match) -> list[dict]:
-        with self._lock:
-            out = list(self.received)
-        return [m for m in out if (op is None or m.get("op") == op) and all(m.get(k) == v for k, v in match.items())]
-
-    def _send(self, ws, msg: dict) -> None:
-        try:
-            with self._lock:
-                ws.send(json.dumps(msg))
-        except Exception:
-            pass
-
-    def _handler(self, ws) -> None:
-        subs: set[str] = set()
-        self._conns.append(ws)
-        stop = threading.Event()
-
-        def publisher() -> None:
-            while not stop.wait(0.01):
-                if self.publishing and "/joint_states" in subs:
-                    self._send(ws, {"op": "publish", "topic": "/joint_states", "msg": {
-                        "header": {"stamp": {"secs": 0, "nsecs": 0}, "frame_id": ""},
-                        "name": list(JOINTS), "position": self.q.tolist(), "velocity": [0.0] * len(JOINTS),
-                        "effort": []}})
-
-        threading.Thread(target=publisher, daemon=True).start()
-        try:
-            for raw in ws:
-                msg = json.loads(raw)
-                with self._lock:
-                    self.received.append(msg)
-                op = msg.get("op")
-                if op == "subscribe":
-                    subs.add(msg["topic"])
-                elif op == "call_service":
-                    self._send(ws, {"op": "service_response", "id": msg.get("id"), "service": msg["service"],
-                                    "values": {"success": True, "message": ""}, "result": True})
-                elif op == "publish" and msg["topic"] == f"{ACTION}/goal":
-                    threading.Thread(target=self._execute, args=(ws, msg["msg"], subs), daemon=True).start()
-        except Exception:
-            pass
-        finally:
-            stop.set()
-
-    def _execute(self, ws, goal: dict, subs: set[str]) -> None:
-        pts = goal["goal"]["trajectory"]["points"]
-        tfs = pts[-1]["time_from_start"]
-        time.sleep((tfs["secs"] + tfs["nsecs"] * 1e-9) * self.time_scale)
-        if self.hold_result:
-            return
-        self.q = np.array(pts[-1]["positions"], float)
-        if f"{ACTION}/result" in subs:
-            self._send(ws, {"op": "publish", "topic": f"{ACTION}/result", "msg": {
-                "header": {"stamp": {"secs": 0, "nsecs": 0}},
-                "status": {"goal_id": goal["goal_id"], "status": 3, "text": ""},
-                "result": {"error_code": 0, "error_string": ""}}})
-
-    def drop_connections(self) -> None:
-        for ws in list(self._conns):
-            with contextlib.suppress(Exception):
-                ws.close()
-
-    def close(self) -> None:
-        self.drop_connections()
-        self._server.shutdown()
-
-
 @pytest.fixture()
 def server():
-    s = FakeRosbridge(RCFG.arm.home_q)
+    s = FakeRosbridge(RCFG.arm.home_q, JOINTS)
     yield s
     s.close()
 
 
-def make_arm(port: int, armed: bool = True, dry_run: bool = False, watchdog_s: float = 0.5,
-             log: CommandLog | None = None) -> InovoArm:
+#: A longer horizon than the default 0.3 s: a loaded CI machine must not make the stream fall behind.
+TEST_STREAM = StreamSettings(horizon_s=0.6)
+
+
+def make_arm(port: int, armed: bool = True, dry_run: bool = False, watchdog_s: float = 1.0,
+             log: CommandLog | None = None, speed_scale: float = 0.25) -> InovoArm:
     kin = MujocoKinematics(RCFG.mjcf, JOINTS, RCFG.arm.tcp_site, RCFG.arm.flange_site)
     return InovoArm("127.0.0.1", port, JOINTS, kin, armed=armed, dry_run=dry_run, watchdog_s=watchdog_s,
-                    connect_timeout_s=2.0, result_timeout_s=2.0, command_log=log or CommandLog(None))
+                    connect_timeout_s=5.0, result_timeout_s=2.0, command_log=log or CommandLog(None),
+                    accel_limits=speed_scale * np.asarray(RCFG.arm.acceleration_limits), stream=TEST_STREAM)
 
 
 def _small_move(q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,7 +59,13 @@ def test_ros_duration_splits_seconds():
     assert ros_duration(0.9999999999) == {"secs": 1, "nsecs": 0}
 
 
-def test_enable_switch_and_trajectory_goal_messages(server, tmp_path):
+def _points(goal: dict) -> tuple[np.ndarray, np.ndarray]:
+    pts = goal["goal"]["trajectory"]["points"]
+    t = np.array([p["time_from_start"]["secs"] + p["time_from_start"]["nsecs"] * 1e-9 for p in pts])
+    return t, np.array([p["positions"] for p in pts])
+
+
+def test_enable_switch_and_streamed_goal_messages(server, tmp_path):
     log = CommandLog(tmp_path / "cmd.jsonl")
     arm = make_arm(server.port, log=log)
     try:
@@ -157,20 +83,133 @@ def test_enable_switch_and_trajectory_goal_messages(server, tmp_path):
     assert subs["/default_move_group/tcp_pose"] == "geometry_msgs/PoseStamped"
     adv = {m["topic"]: m["type"] for m in server.msgs("advertise")}
     assert adv[f"{ACTION}/goal"] == "control_msgs/FollowJointTrajectoryActionGoal"
-    goals = server.msgs("publish", topic=f"{ACTION}/goal")
-    assert len(goals) == 1
-    traj = goals[0]["msg"]["goal"]["trajectory"]
-    assert traj["joint_names"] == list(JOINTS)
-    assert [p["time_from_start"] for p in traj["points"]] == [
-        {"secs": 0, "nsecs": 100_000_000}, {"secs": 0, "nsecs": 250_000_000}, {"secs": 1, "nsecs": 500_000_000}]
-    np.testing.assert_allclose([p["positions"] for p in traj["points"]], q)
-    assert goals[0]["msg"]["goal_id"]["id"]
-    np.testing.assert_allclose(st.q, q[-1])  # the fake moved to the last point and reported it
+    goals = server.goals()
+    # a 1.5 s motion streamed every 0.1 s: about 15 chunks, each replacing the previous one
+    assert 8 <= len(goals) <= 16 and len({g["goal_id"]["id"] for g in goals}) == len(goals)
+    knots_t, knots_q = np.r_[0.0, times], np.vstack([RCFG.arm.home_q, q])
+    for g in goals:
+        traj = g["goal"]
+        assert traj["trajectory"]["joint_names"] == list(JOINTS)
+        assert [t["name"] for t in traj["path_tolerance"]] == list(JOINTS)
+        assert all(t["position"] == 0.1 for t in traj["path_tolerance"])
+        assert all(t["position"] == 0.01 for t in traj["goal_tolerance"])
+        assert traj["goal_time_tolerance"] == {"secs": 0, "nsecs": 500_000_000}
+        t, pts = _points(g)
+        assert t[0] > 0 and np.all(np.diff(t) > 0)
+        # every point lies on the path the safety layer checked (the piecewise-linear joint path)
+        dense = interp_path(knots_t, knots_q, np.linspace(0, times[-1], 20001))
+        assert max(np.min(np.max(np.abs(dense - p), axis=1)) for p in pts) < 2e-4
+    # every chunk but the last ends at rest: its final step is slow enough to stop within the acceleration limit
+    a_lim = 0.25 * np.asarray(RCFG.arm.acceleration_limits)
+    for g in goals[:-1]:
+        t, pts = _points(g)
+        v_last = np.abs(pts[-1] - pts[-2]) / (t[-1] - t[-2])
+        assert np.all(v_last <= a_lim * (t[-1] - t[-2]) + 1e-9) and t[-1] <= arm.stop_within_s + 1e-6
+    t_last, q_last = _points(goals[-1])
+    np.testing.assert_allclose(q_last[-1], q[-1])
+    np.testing.assert_allclose(st.q, q[-1], atol=1e-9)  # the modelled arm reached the end and reported it
     np.testing.assert_allclose(st.T_world_tcp, arm.forward_kinematics(q[-1]))
     lines = [json.loads(s) for s in (tmp_path / "cmd.jsonl").read_text().splitlines()]
     kinds = [r["kind"] for r in lines]
-    assert kinds.count("call_service") == 2 and "send_goal" in kinds and "goal_result" in kinds
+    assert kinds.count("call_service") == 2 and kinds.count("send_goal") == len(goals) and "goal_result" in kinds
+    assert [r for r in lines if r["kind"] == "send_trajectory"][0]["stop_within_s"] == arm.stop_within_s
     assert all("t" in r and "iso" in r for r in lines)
+
+
+def _long_move(q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 3 s minimum-jerk move of the shoulder and elbow (within the speed limits at speed_scale 0.25)."""
+    from torm.execution.trajectory import min_jerk_segment
+
+    return min_jerk_segment(q0, q0 + np.array([0.3, -0.25, 0.3, 0.0, 0.2, 0.0]), 3.0, 0.02)
+
+
+@pytest.mark.parametrize("how", ["silent", "dropped"])
+def test_arm_stops_by_itself_when_the_link_dies_mid_trajectory(how):
+    """The link goes silent (or the socket drops) 1 s into a 3 s motion: no stop command can arrive, yet the
+    modelled controller brings the arm to rest within the arm's stated bound, short of the goal."""
+    srv = FakeRosbridge(RCFG.arm.home_q, JOINTS)
+    arm = make_arm(srv.port)
+    try:
+        q0 = arm.state().q
+        times, q = _long_move(q0)
+        t0 = time.monotonic()
+        cut = {}
+        threading.Timer(1.0, lambda: cut.setdefault("t", srv.freeze() if how == "silent"
+                                                     else (time.monotonic(), srv.drop_connections())[0])).start()
+        with pytest.raises(HardwareError, match="stopped"):
+            arm.follow_trajectory(times, q)
+        t_cut = cut["t"]
+        bound = arm.stop_within_s
+        assert bound is not None and bound < 1.5 and bound == pytest.approx(0.6 + 0.25, abs=0.01)  # horizon + braking
+        t_rest = srv.controller.end_time()  # no goal arrived after the cut: the last one decides
+        assert t_rest - t_cut <= bound
+        assert t_rest < t0 + times[-1] - 0.5  # it did not run on to the end of the motion
+        while time.monotonic() < t_rest + 0.15:
+            time.sleep(0.02)
+        hist = [(t, x) for t, x in srv.history if t >= t_cut - 0.2]
+        moving_at_cut = np.max(np.abs(hist[1][1] - hist[0][1]))
+        assert moving_at_cut > 1e-4  # the arm was moving when the link died ...
+        after = [x for t, x in hist if t > t_rest + 0.02]
+        assert after and np.max(np.abs(np.asarray(after) - after[-1])) < 1e-9  # ... and is at rest now
+        q_rest = after[-1]
+        assert np.max(np.abs(q_rest - q[-1])) > 0.05  # well short of the goal
+        # it stopped on the checked path, not somewhere else
+        dense = interp_path(np.r_[0.0, times], np.vstack([q0, q]), np.linspace(0, times[-1], 20001))
+        assert np.min(np.max(np.abs(dense - q_rest), axis=1)) < 1e-3
+        # and it slowed down on the way (no step stop): the last 0.1 s before rest is slower than at the cut
+        speeds = [(t, np.max(np.abs(b - a)) / (tb - t)) for (t, a), (tb, b) in zip(hist[:-1], hist[1:], strict=True)]
+        v_cut = max(v for t, v in speeds if abs(t - t_cut) < 0.05)
+        v_end = max(v for t, v in speeds if t_rest - 0.1 < t < t_rest)
+        assert v_end < v_cut
+        with pytest.raises(HardwareError, match="refused"):
+            arm.follow_trajectory(times, q)
+        with pytest.raises(HardwareError, match="refused"):
+            arm.enable()
+    finally:
+        arm.close()
+        srv.close()
+
+
+def test_aborted_chunk_stops_the_motion(server):
+    """The controller aborts a chunk (e.g. its path tolerance was violated): the adapter stops streaming."""
+    arm = make_arm(server.port)
+    try:
+        server.abort_at_goal = 4
+        times, q = _long_move(arm.state().q)
+        t0 = time.monotonic()
+        with pytest.raises(HardwareError, match="ABORTED"):
+            arm.follow_trajectory(times, q)
+        assert time.monotonic() - t0 < 2.0 and 4 <= len(server.goals()) <= 6  # no more chunks after the abort
+    finally:
+        arm.close()
+
+
+def test_a_stream_that_falls_behind_brakes_to_a_stop(server, monkeypatch):
+    """The process stalls longer than the horizon (here: one wait of 1 s): the arm runs into the braking tail
+    of the last chunk and stops on the path; the adapter notices and abandons the motion."""
+    arm = make_arm(server.port)
+    try:
+        q0 = arm.state().q
+        times, q = _long_move(q0)
+        real_watch, calls = arm._watch_chunks, []
+
+        def stalling(*a):
+            calls.append(1)
+            if len(calls) == 5:
+                time.sleep(1.0)
+            return real_watch(*a)
+
+        monkeypatch.setattr(arm, "_watch_chunks", stalling)
+        with pytest.raises(HardwareError, match="beyond its 0.6 s horizon"):
+            arm.follow_trajectory(times, q)
+        t_last = server.msgs("publish", topic=f"{ACTION}/goal")
+        assert len(t_last) == 5  # nothing was sent after the stall (the cancel only)
+        time.sleep(max(0.0, server.controller.end_time() - time.monotonic()) + 0.05)
+        q_rest = server.controller.q_at(time.monotonic())
+        dense = interp_path(np.r_[0.0, times], np.vstack([q0, q]), np.linspace(0, times[-1], 20001))
+        assert np.min(np.max(np.abs(dense - q_rest), axis=1)) < 1e-3 and np.max(np.abs(q_rest - q[-1])) > 0.05
+    finally:
+        arm.close()
 
 
 def test_not_armed_refuses_and_sends_no_goal(server):
@@ -218,25 +257,6 @@ def test_unreachable_host_names_host_and_port():
         make_arm(port)
 
 
-def test_disconnect_stops_the_arm_and_refuses_commands():
-    srv = FakeRosbridge(RCFG.arm.home_q, time_scale=1.0, hold_result=True)
-    arm = make_arm(srv.port, watchdog_s=5.0)
-    try:
-        times, q = _small_move(arm.state().q)
-        threading.Timer(0.3, srv.drop_connections).start()
-        t0 = time.monotonic()
-        with pytest.raises(HardwareError, match="stopped.*dropped"):
-            arm.follow_trajectory(times, q)
-        assert time.monotonic() - t0 < 1.4  # aborted well before the 1.5 s trajectory + 2 s result slack
-        with pytest.raises(HardwareError, match="refused"):
-            arm.follow_trajectory(times, q)
-        with pytest.raises(HardwareError, match="refused"):
-            arm.enable()
-    finally:
-        arm.close()
-        srv.close()
-
-
 def test_watchdog_cancels_and_disables_when_joint_states_stop(server):
     arm = make_arm(server.port, watchdog_s=0.15)
     try:
@@ -280,7 +300,7 @@ def _backend(server, **hw):
 
     cfg = HardwareConfig(host="127.0.0.1", port=server.port, armed=True, command_log=None,
                          gripper=GripperSettings(activate=False), **hw)
-    arm = make_arm(server.port)
+    arm = make_arm(server.port, speed_scale=cfg.speed_scale)
     return RealBackend(RCFG, cfg, arm=arm, gripper=_NullGripper()), arm
 
 
@@ -305,19 +325,59 @@ def test_safety_layer_rejects_out_of_box_target_before_sending(server):
         arm.close()
 
 
+# Two arm configurations with the TCP 4.6 and 6.1 cm above the table whose straight joint-space path between
+# them dips 4.4 cm below it (found by a random search over the Inovo model, checked below).
+DIP_A = np.array([-0.955, -0.78, 2.78, 0.483, 0.87, 1.571])
+DIP_B = np.array([-0.118, -0.601, 1.765, -0.058, 1.178, 1.571])
+
+
+def test_path_dipping_below_the_table_between_waypoints_is_refused(server):
+    backend, arm = _backend(server)
+    try:
+        fk = arm.forward_kinematics
+        assert fk(DIP_A)[2, 3] > 0.04 and fk(DIP_B)[2, 3] > 0.04  # both waypoints are above the table
+        z = [fk(DIP_A + (DIP_B - DIP_A) * u)[2, 3] for u in np.linspace(0, 1, 101)]
+        assert min(z) < -0.04  # ... the path between them is not
+        server.controller.cancel(time.monotonic())
+        server.controller.q = DIP_A[None].copy()  # the arm stands at A
+        time.sleep(0.1)
+        with pytest.raises(SafetyError, match="between waypoints"):
+            backend.arm.follow_trajectory(np.array([4.0]), DIP_B[None])  # one waypoint: B
+        assert server.goals() == []
+    finally:
+        backend.close()
+        arm.close()
+
+
+def test_backend_close_sends_cancel_then_disable(server):
+    backend, arm = _backend(server)
+    try:
+        t0 = time.monotonic()
+        backend.close()
+        cancel = server.msgs("publish", since=t0, topic=f"{ACTION}/cancel")
+        calls = server.msgs("call_service", since=t0)
+        assert cancel and cancel[-1]["msg"]["id"] == ""  # every goal of the action server
+        assert [m["service"] for m in calls] == ["/robot/disable"]
+        backend.close()  # idempotent: nothing more is sent
+        assert len(server.msgs("call_service", since=t0)) == 1
+    finally:
+        arm.close()
+
+
 def test_capture_moves_the_wrist_camera_over_the_hemisphere(server):
-    server.time_scale = 0.01
     T_flange_cam = np.eye(4)
     T_flange_cam[:3, 3] = [0.0, 0.06, 0.03]
-    backend, arm = _backend(server, capture=RealCaptureSettings(radius=0.5, return_home=False, settle_s=0.0))
+    # fast moves keep the test short (0.85 x the limits; gentle braking tails keep the config valid)
+    backend, arm = _backend(server, speed_scale=0.85, stream=StreamSettings(brake_fraction=0.1),
+                            capture=RealCaptureSettings(radius=0.5, return_home=False, settle_s=0.0))
     backend._camera = _FakeCamera(arm, T_flange_cam)
     try:
         cap = backend.capture(3)
     finally:
         backend.close()
         arm.close()
-    goals = server.msgs("publish", topic=f"{ACTION}/goal")
-    assert len(cap) == 2 and cap.metadata["view_indices"] == [1, 2] and len(goals) == len(cap)  # view 0: out of reach
+    moves = {g["goal_id"]["id"].rsplit(".", 1)[0] for g in server.goals()}  # chunk ids are <trajectory>.<k>
+    assert len(cap) == 2 and cap.metadata["view_indices"] == [1, 2] and len(moves) == len(cap)  # view 0: out of reach
     assert cap.table_height == 0.0 and cap.scenario == "real" and cap.workspace_bounds.shape == (2, 3)
     from sim.camera_rig import hemisphere_poses
 

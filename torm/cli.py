@@ -83,8 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.verbose, args.quiet)
     try:
         return int(args.func(args) or 0)
-    except TormError as exc:
-        log.error("%s", exc)
+    except TormError as exc:  # printed once, here; library code raises without logging it
         print(f"torm: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # stdout closed early (e.g. piped into head): not an error of ours

@@ -1,8 +1,16 @@
 """Config loading: frozen dataclasses from YAML/dicts, unknown keys rejected, ``a.b=c`` overrides.
 
 Every package defines its own frozen dataclass config and validates it in ``__post_init__``
-(raising :class:`~torm.errors.ConfigError`). This module only turns nested mappings into those
-dataclasses:
+(raising :class:`~torm.errors.ConfigError`). This module turns nested mappings into those
+dataclasses, and applies two rules to every config without the config having to ask:
+
+- numbers: YAML is read with :class:`ConfigLoader`, which resolves every YAML 1.2 / JSON number
+  spelling (``1e-7``, ``1E5``, ``.5``) as a number; PyYAML's YAML 1.1 resolver reads ``1e-7`` as a
+  string;
+- finiteness: every ``float`` field (also inside tuples and optionals) refuses NaN and +-inf. A field
+  that may be infinite says so with the annotated type :data:`InfFloat` (``Annotated[float,
+  ALLOW_INF]``); it still refuses NaN. :func:`check_finite` applies the same rule to an instance built
+  directly in Python (call it from ``__post_init__``).
 
 >>> from dataclasses import dataclass
 >>> @dataclass(frozen=True)
@@ -18,17 +26,64 @@ dataclasses:
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 import types
 import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import yaml
 
 from torm.errors import ConfigError
 
 T = TypeVar("T")
+
+
+class _AllowInf:
+    """Marker in ``Annotated[float, ALLOW_INF]``: the field may be +-inf (never NaN)."""
+
+    def __repr__(self) -> str:
+        return "ALLOW_INF"
+
+
+ALLOW_INF = _AllowInf()
+#: A float config field that may be infinite (e.g. "no limit"); NaN is still refused.
+InfFloat = Annotated[float, ALLOW_INF]
+
+
+class ConfigLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader with the YAML 1.2 core-schema float resolver added to YAML 1.1's.
+
+    YAML 1.1 (PyYAML) needs a dot and a signed exponent (``1.0e-7``); YAML 1.2 and JSON also write
+    ``1e-7``, ``1E+5``, ``2e3`` and ``.5``. Everything PyYAML read as a float before still is one.
+    """
+
+
+# the float resolver is per first character: drop the 1.1 one, add the union of 1.1 and 1.2 spellings
+ConfigLoader.yaml_implicit_resolvers = {
+    ch: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:float"]
+    for ch, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+ConfigLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                  |[-+]?(?:[0-9][0-9_]*)[eE][-+]?[0-9]+
+                  |[-+]?\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
+                  |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
+                  |[-+]?\.(?:inf|Inf|INF)
+                  |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."),
+)
+# YAML 1.2 octal (0o17); YAML 1.1's 017 and 0x1F are already ints
+ConfigLoader.add_implicit_resolver("tag:torm,2026:octal", re.compile(r"^0o[0-7]+$"), ["0"])
+ConfigLoader.add_constructor("tag:torm,2026:octal", lambda loader, node: int(node.value[2:], 8))
+
+
+def parse_yaml(text: str) -> Any:
+    """Parse YAML (or JSON) text with :class:`ConfigLoader`; yaml.YAMLError on bad syntax."""
+    return yaml.load(text, Loader=ConfigLoader)  # noqa: S506 - ConfigLoader is a SafeLoader
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -40,7 +95,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not path:
         raise ConfigError(f"override {text!r} has an empty key")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = parse_yaml(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
         raise ConfigError(f"override {text!r}: cannot parse the value as YAML ({exc})") from exc
     return path, value
@@ -77,7 +132,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     if not p.is_file():
         raise ConfigError(f"config file {p} does not exist; check the path")
     try:
-        data = yaml.safe_load(p.read_text()) or {}
+        data = parse_yaml(p.read_text()) or {}
     except yaml.YAMLError as exc:
         raise ConfigError(f"{p}: invalid YAML ({exc})") from exc
     if not isinstance(data, dict):
@@ -125,7 +180,7 @@ def to_dict(obj: Any) -> Any:
 def _build(cls: type, data: Any, where: str) -> Any:
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where}: expected a mapping for {cls.__name__}, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
+    hints = typing.get_type_hints(cls, include_extras=True)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - set(fields))
     if unknown:
@@ -139,7 +194,58 @@ def _build(cls: type, data: Any, where: str) -> Any:
         raise ConfigError(f"{where}: {exc}") from exc
 
 
+def _check_float(value: float, where: str, allow_inf: bool) -> float:
+    """``value`` when finite (or infinite with ``allow_inf``); ConfigError naming the field otherwise."""
+    if math.isnan(value):
+        raise ConfigError(f"{where}: NaN is not a valid value; give a number")
+    if math.isinf(value) and not allow_inf:
+        raise ConfigError(f"{where}: {value} is not allowed; give a finite number")
+    return value
+
+
+def _annotated(tp: Any) -> tuple[Any, bool]:
+    """(the type inside ``Annotated[...]``, whether it carries :data:`ALLOW_INF`); (tp, False) otherwise."""
+    if typing.get_origin(tp) is Annotated:
+        base, *meta = typing.get_args(tp)
+        return base, any(m is ALLOW_INF for m in meta)
+    return tp, False
+
+
+def check_finite(obj: Any, where: str = "") -> None:
+    """Refuse NaN / inf in every float field of the dataclass instance ``obj`` (nested configs too).
+
+    The rule of :func:`from_dict` for instances built directly in Python: call it from a top-level
+    config's ``__post_init__``. Fields typed :data:`InfFloat` may be infinite; ``Any``/``dict`` fields
+    are not inspected.
+    """
+    if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
+        return
+    hints = typing.get_type_hints(type(obj), include_extras=True)
+    for f in dataclasses.fields(obj):
+        _check_value(hints.get(f.name, Any), getattr(obj, f.name), f"{where or type(obj).__name__}.{f.name}")
+
+
+def _check_value(tp: Any, value: Any, where: str) -> None:
+    tp, allow_inf = _annotated(tp)
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        check_finite(value, where)
+    elif origin in (typing.Union, types.UnionType):
+        if any(_annotated(a)[0] is float for a in args) and isinstance(value, float):
+            _check_float(value, where, any(_annotated(a) == (float, True) for a in args))
+    elif origin in (tuple, list) and isinstance(value, (tuple, list)):
+        if origin is tuple and args and not (len(args) == 2 and args[1] is Ellipsis):
+            for i, (a, v) in enumerate(zip(args, value, strict=False)):
+                _check_value(a, v, f"{where}[{i}]")
+        elif args:
+            for i, v in enumerate(value):
+                _check_value(args[0], v, f"{where}[{i}]")
+    elif tp is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        _check_float(float(value), where, allow_inf)
+
+
 def _coerce(tp: Any, value: Any, where: str) -> Any:
+    tp, allow_inf = _annotated(tp)
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if dataclasses.is_dataclass(tp):
@@ -179,7 +285,7 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
-        return float(value)
+        return _check_float(float(value), where, allow_inf)
     if tp is int:
         if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
             raise ConfigError(f"{where}: expected an integer, got {value!r}")

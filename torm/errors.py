@@ -64,3 +64,7 @@ class HardwareError(TormError):
 
 class BenchmarkError(TormError):
     """A benchmark run folder, suite or results file is invalid."""
+
+
+class OutputError(TormError):
+    """An output file or folder (``--out``, ``--record``) cannot be written."""

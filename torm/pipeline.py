@@ -23,7 +23,7 @@ import numpy as np
 
 from torm import __version__
 from torm.capture.render_settings import PbrSettings
-from torm.config import to_dict
+from torm.config import check_finite, to_dict
 from torm.errors import ConfigError, ExecutionError, ReconstructionError, TormError, UnknownNameError
 from torm.execution.pick import PickConfig, execute_pick, free_directions
 from torm.execution.success import Outcome, SuccessCriteria
@@ -167,6 +167,7 @@ class TrialConfig:
     success: SuccessCriteria = field(default_factory=SuccessCriteria)
 
     def __post_init__(self) -> None:
+        check_finite(self, "TrialConfig")  # NaN / inf in any float field of any section (torm.config)
         if self.method not in METHODS:
             raise UnknownNameError("method", self.method, METHODS)
         if self.backend not in ("sim", "real"):

@@ -5,7 +5,10 @@ Why a fresh interpreter per trial (``subprocess`` running ``python -m torm.bench
 equivalent of multiprocessing's "spawn" context): MuJoCo's EGL contexts and torch's thread pools do
 not survive ``fork`` after threads, a segfault or a leaked GL context must not take the runner or the
 next trial with it, and a hung trial can only be stopped reliably by killing its process. The worker
-runs in its own session (process group); a timeout kills the whole group with SIGKILL.
+runs in its own session (process group). A worker that must stop (its timeout, Ctrl-C or SIGTERM of
+the runner, an error in the runner) first gets SIGTERM, which the worker turns into an exception in
+the trial so its ``finally`` blocks run (a real backend's ``close`` cancels the arm's motion and
+disables it), and ``stop_grace_s`` to exit before the whole group is SIGKILLed.
 
 Costs about one interpreter start per trial (0.1 s, plus the trial's own imports), negligible
 against a closed-loop trial (tens of seconds to minutes).
@@ -53,6 +56,7 @@ class TrialJob:
         logs_dir: where the worker's log is kept for failed trials (None: not kept).
         engine: recorded in the row's ``run`` metadata.
         session: the runner session id, recorded in ``run``.
+        stop_grace_s: SIGTERM -> SIGKILL grace of a worker that must stop (timeout, cancel).
     """
 
     trial_fn: str
@@ -64,6 +68,7 @@ class TrialJob:
     logs_dir: str | None = None
     engine: str = "pool"
     session: int = 0
+    stop_grace_s: float = 10.0
 
 
 @dataclass
@@ -73,21 +78,44 @@ class Canceller:
     stop: threading.Event = field(default_factory=threading.Event)
     running: set[subprocess.Popen] = field(default_factory=set)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    grace_s: float = 10.0
 
     def cancel(self) -> None:
+        """SIGTERM every running worker at once, wait up to ``grace_s`` for all, SIGKILL the rest.
+
+        A second Ctrl-C while waiting skips the rest of the grace period (SIGKILL now).
+        """
         self.stop.set()
         with self.lock:
             procs = list(self.running)
-        for p in procs:
-            _kill_group(p)
+        stop_groups(procs, self.grace_s)
 
 
-def _kill_group(proc: subprocess.Popen) -> None:
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
     try:
-        os.killpg(proc.pid, signal.SIGKILL)
+        os.killpg(proc.pid, sig)
     except (ProcessLookupError, PermissionError):
         with contextlib.suppress(ProcessLookupError):
-            proc.kill()
+            proc.send_signal(sig)
+
+
+def stop_groups(procs: list[subprocess.Popen], grace_s: float) -> None:
+    """SIGTERM the process groups of ``procs``, give them ``grace_s`` s to exit, then SIGKILL what is left."""
+    for p in procs:
+        if p.poll() is None:
+            _signal_group(p, signal.SIGTERM)
+    deadline = time.monotonic() + max(0.0, grace_s)
+    try:
+        for p in procs:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                p.wait(timeout=max(0.0, deadline - time.monotonic()))
+    finally:  # also when a second Ctrl-C cuts the grace period short
+        for p in procs:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(p.pid, signal.SIGKILL)  # the group: grandchildren too
+            with contextlib.suppress(ProcessLookupError):
+                p.kill()
+            p.wait()
 
 
 def safe_name(key: str) -> str:
@@ -117,7 +145,8 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
     """Run ``spec`` in a fresh worker process and return its result row (never raises for trial failures).
 
     Categories: the trial function's record (``status`` ok), ``error``/``physics_error``/... when it
-    raised, ``timeout`` when it ran past ``job.timeout_s``, ``crashed`` when the process died without a
+    raised, ``timeout`` when it ran past ``job.timeout_s`` (then it got SIGTERM and ``job.stop_grace_s``
+    before SIGKILL), ``crashed`` when the process died without a
     result (segfault, ``os._exit``, OOM kill; the message names the signal or exit code). The row's
     ``run`` holds the worker's pid, times, return code and, for failed trials, the tail of its log
     (``log_tail``) and the kept log file (``log``).
@@ -131,6 +160,7 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
     job_path.write_text(json.dumps({
         "spec": spec.as_dict(), "overrides": list(job.overrides), "trial_fn": job.trial_fn,
         "record_path": record_path, "result_path": str(result_path), "parent_pid": os.getpid(),
+        "stop_grace_s": job.stop_grace_s,
     }))
     env = dict(os.environ)
     for name in THREAD_ENV:
@@ -156,10 +186,12 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
         try:
             rc = proc.wait(timeout=job.timeout_s)
         except subprocess.TimeoutExpired:
-            _kill_group(proc)
-            proc.wait()
+            stop_groups([proc], job.stop_grace_s)
             status = "timeout"
             rc = proc.returncode
+        except BaseException:  # interrupted while waiting (e.g. a Ray task cancelled): stop the worker cleanly
+            stop_groups([proc], job.stop_grace_s)
+            raise
         finally:
             if canceller is not None:
                 with canceller.lock:
@@ -197,7 +229,7 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
 
 def timeout_message(timeout_s: float) -> str:
     """The message of a timeout row (the same for every engine)."""
-    return f"trial ran longer than the {timeout_s:g} s limit and was killed"
+    return f"trial ran longer than the {timeout_s:g} s limit and was stopped (SIGTERM, then SIGKILL after the grace)"
 
 
 def _row(spec: TrialSpec, job: TrialJob, status: str | None, rc: int | None, result_path: Path) -> dict[str, Any]:

@@ -16,8 +16,8 @@ from torm.bench.spec import TrialSpec
 
 def pool_rows(specs: Sequence[TrialSpec], job: TrialJob, workers: int) -> Iterator[dict[str, Any]]:
     """Yield one row per spec as trials finish (completion order). Closing the generator (or an
-    exception in the consumer) kills every running worker."""
-    canceller = Canceller()
+    exception in the consumer) stops every running worker (SIGTERM, ``job.stop_grace_s``, SIGKILL)."""
+    canceller = Canceller(grace_s=job.stop_grace_s)
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="trial")
     todo = list(specs)
     running: set[Future] = set()

@@ -11,8 +11,11 @@ submitted and records ``timeout``; a task whose Ray worker died is recorded as `
 Paths: recordings and kept logs are written on the node that ran the trial, at the run folder's
 path; on a multi-node cluster that folder should be on a shared file system (rows come back to the
 driver regardless). Every node needs torm installed in the same environment. A task cancelled by
-the driver's backstop is killed with its trial process (Ray reaps a killed worker's children), which
-may leave that trial's small scratch folder (``torm-trial-*``: job file and log) in the node's temp dir.
+the driver's backstop is force-killed; its trial process dies with it (Ray reaps a killed worker's
+children) or, left behind, notices that its parent died and stops itself through the same SIGTERM path
+(the trial's clean-up runs). A killed trial may leave its small scratch folder (``torm-trial-*``). When the
+driver stops (Ctrl-C, an error), running tasks are cancelled without force, so each stops its trial
+with SIGTERM and the grace period like the local pool.
 """
 
 from __future__ import annotations
@@ -95,8 +98,11 @@ def ray_rows(specs: Sequence[TrialSpec], job: TrialJob, workers: int, address: s
                                   "session": job.session, "log_tail": "cancelled by the driver (ray.cancel)"}
                     yield row
     finally:
+        # KeyboardInterrupt in each task: run_isolated stops its worker with SIGTERM + grace (the stop path)
         for ref in in_flight:
-            ray.cancel(ref, force=True)
+            ray.cancel(ref, force=False)
+        if in_flight:
+            ray.wait(list(in_flight), num_returns=len(in_flight), timeout=job.stop_grace_s + 5.0)
         if started_here:
             ray.shutdown()
 

@@ -11,6 +11,10 @@ and the valid lines are kept (``strict=True`` raises :class:`BenchmarkError` ins
 identity hash (:func:`torm.bench.spec.config_hash`), versions, git revision and one entry per
 invocation ("session") with start/end timestamps, which the report turns into throughput.
 
+Retries (``torm bench --retry failed``) append a new row for the same key with ``attempt`` one higher
+(rows without one are attempt 1): reading keeps the highest attempt of each key in ``rows`` and the
+rows it replaced in ``history``, so nothing that happened is lost.
+
 Non-finite floats (NaN, inf) are written as ``null`` so every line is strict JSON.
 """
 
@@ -89,14 +93,16 @@ class ResultsFile:
         rows: the valid rows in file order (one per key; see ``duplicates``).
         bad_lines: 1-based numbers of corrupted lines that were skipped (not counting a truncated last line).
         truncated: the last line had no newline (an interrupted write) and was dropped.
-        duplicates: keys seen more than once; the first row is kept.
-        problems: human-readable descriptions of everything above.
+        duplicates: keys seen more than once with the same attempt; the first row is kept.
+        history: rows replaced by a later attempt of the same trial (``--retry``), in file order.
+        problems: human-readable descriptions of the corrupted, truncated and duplicated lines.
     """
 
     rows: list[dict[str, Any]] = field(default_factory=list)
     bad_lines: list[int] = field(default_factory=list)
     truncated: bool = False
     duplicates: list[str] = field(default_factory=list)
+    history: list[dict[str, Any]] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -124,7 +130,7 @@ def read_results(path: str | Path, strict: bool = False) -> ResultsFile:
                f"and was dropped: {tail[:80]!r}")
         out.problems.append(msg)
         log.warning("%s", msg)
-    seen: set[str] = set()
+    where: dict[str, int] = {}  # key -> index in out.rows
     for i, raw in enumerate(lines, start=1):
         if not raw.strip():
             continue
@@ -140,13 +146,27 @@ def read_results(path: str | Path, strict: bool = False) -> ResultsFile:
             out.problems.append(msg)
             log.warning("%s", msg)
             continue
-        if row["key"] in seen:
-            out.duplicates.append(row["key"])
-            out.problems.append(f"{p}: line {i} repeats trial {row['key']!r}; the first row is kept")
+        k = row["key"]
+        if k in where:
+            old = out.rows[where[k]]
+            if attempt(row) > attempt(old):
+                out.history.append(old)
+                out.rows[where[k]] = row
+                continue
+            out.duplicates.append(k)
+            out.problems.append(f"{p}: line {i} repeats trial {k!r}; the first row is kept")
             continue
-        seen.add(row["key"])
+        where[k] = len(out.rows)
         out.rows.append(row)
     return out
+
+
+def attempt(row: dict[str, Any]) -> int:
+    """Which attempt at its trial a row is (1 unless a ``--retry`` wrote it)."""
+    try:
+        return int(row.get("attempt") or 1)
+    except (TypeError, ValueError):
+        return 1
 
 
 def repair_tail(path: str | Path) -> Path | None:
@@ -291,6 +311,7 @@ def comparable(row: dict[str, Any]) -> dict[str, Any]:
     return strip({k: v for k, v in row.items() if k not in VOLATILE_KEYS})
 
 
-__all__ = ["MANIFEST_NAME", "RESULTS_NAME", "ResultsFile", "VOLATILE_KEYS", "append_row", "comparable", "diff_dicts",
+__all__ = ["MANIFEST_NAME", "RESULTS_NAME", "ResultsFile", "VOLATILE_KEYS", "append_row", "attempt", "comparable",
+           "diff_dicts",
            "encode_row", "git_revision", "move_aside", "package_versions", "read_manifest", "read_results",
            "repair_tail", "utc_now", "write_json_atomic"]

@@ -13,9 +13,11 @@ Row format (one ``results.jsonl`` line)::
 
 ``status`` says whether the trial function returned (``ok``) or not; ``failure`` is the trial's own
 failure category (e.g. ``physics_error`` from run_trial) or the runner's (``timeout``, ``crashed``,
-``error``, ``physics_error``, ``reconstruction_failed``, ``config_error``, ``out_of_memory``). A trial
-that never returned gets one object entry per scenario object with ``outcome`` = the category, so
-per-object success counts stay honest (a timed-out trial counts its objects as failed).
+``error``, ``physics_error``, ``reconstruction_failed``, ``config_error``, ``out_of_memory``,
+``terminated``: the worker got SIGTERM from outside the runner). A trial that never returned gets one
+object entry per scenario object with ``outcome`` = the category, so per-object success counts stay
+honest (a timed-out trial counts its objects as failed). A row written by ``--retry failed`` carries
+``attempt`` (2, 3, ...) and ``retry_of`` (the replaced row's status, failure and session).
 ``run`` is the only part that depends on how the trial ran (engine, worker, times); comparisons
 ignore it (:func:`torm.bench.results.comparable`).
 """
@@ -28,7 +30,9 @@ from torm.bench.spec import TrialSpec
 
 SPEC_KEYS = ("key", "suite", "scenario", "trial", "method", "seed")
 RUNNER_CATEGORIES = ("timeout", "crashed", "error", "physics_error", "reconstruction_failed", "config_error",
-                     "out_of_memory")
+                     "out_of_memory", "terminated")
+#: Row statuses ``torm bench --retry failed`` runs again: the trial function never returned a record.
+RETRY_STATUSES = ("crashed", "timeout", "error")
 
 
 def _head(spec: TrialSpec) -> dict[str, Any]:
@@ -71,4 +75,4 @@ def trial_failed(row: dict[str, Any]) -> bool:
             or row.get("n_success", 0) < row.get("n_objects", 0))
 
 
-__all__ = ["RUNNER_CATEGORIES", "SPEC_KEYS", "failure_row", "ok_row", "trial_failed"]
+__all__ = ["RETRY_STATUSES", "RUNNER_CATEGORIES", "SPEC_KEYS", "failure_row", "ok_row", "trial_failed"]

@@ -1,20 +1,29 @@
-"""Run a benchmark grid into a run folder, resumably.
+"""Run a benchmark grid into a run folder, resumably, one bench per folder at a time.
 
 ``run_benchmark(config, out_dir)``:
 
-1. builds the grid (:func:`torm.bench.spec.build_grid`) and lets the trial module check the overrides;
-2. opens the run folder: a new folder gets a manifest; an existing one is resumed when its config
-   identity (:data:`torm.bench.spec.IDENTITY_FIELDS`) is unchanged, refused with the differences
-   listed otherwise, or moved aside first with ``fresh=True`` (nothing is deleted);
-3. cuts an interrupted last line off ``results.jsonl`` (saved aside) and skips every trial whose key
-   already has a row, so re-running the same command continues where it stopped and never
-   duplicates a trial;
-4. runs the remaining trials on the engine (``pool``: local isolated processes, ``ray``: Ray tasks),
+1. builds the grid (:func:`torm.bench.spec.build_grid`) and lets the trial module resolve the overrides
+   into the full base trial config (:func:`torm.bench.spec.validate_for_trial_fn`);
+2. checks the folder can be written and takes its lock (:class:`torm.bench.lock.RunLock`): a second
+   bench on the same folder is refused with the holder's pid, host and command; a stale lock of a dead
+   bench is taken over;
+3. opens the run folder: a new folder gets a manifest; an existing one is resumed when its run identity
+   (:mod:`torm.bench.identity`: the resolved trial config, the files it names, the benchmark fields and
+   the code version: git commit, uncommitted changes, dependency versions) is unchanged, refused with
+   the differences listed otherwise, or moved aside first with ``fresh=True`` (nothing is deleted);
+   sessions a killed bench left ``running`` are marked ``killed``;
+4. cuts an interrupted last line off ``results.jsonl`` (saved aside) and skips every trial whose key
+   already has a row; with ``retry="failed"`` it also runs again every trial whose row is ``crashed``,
+   ``timeout`` or ``error`` (the new row is the next ``attempt``; the old one stays in the file as history);
+5. runs the remaining trials on the engine (``pool``: local isolated processes, ``ray``: Ray tasks),
    appending each row as soon as it finishes, with a tqdm bar (trials done, object success rate so
    far, ETA) on stderr;
-5. records the invocation as a "session" in the manifest (start, end, trials run, engine, git).
+6. records the invocation as a "session" in the manifest (start, end, status, trials run, engine, pid).
 
-Folder layout: ``manifest.json``, ``results.jsonl``, ``logs/<key>.log`` (worker logs of failed
+The summary lists every repair made to the folder (``repairs``): a cut-off last line, skipped corrupted
+or duplicated lines, a stale lock, sessions marked killed (each is also logged once, where it is made).
+
+Folder layout: ``manifest.json``, ``results.jsonl``, ``.lock``, ``logs/<key>.log`` (worker logs of failed
 trials), ``recordings/<key>.rrd`` (with ``record`` on), ``old-<time>/`` (what ``fresh`` moved aside).
 """
 
@@ -28,29 +37,31 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from torm.bench.identity import identity_hash, run_identity
 from torm.bench.isolate import TrialJob
+from torm.bench.lock import RunLock
 from torm.bench.results import (
     MANIFEST_NAME,
     RESULTS_NAME,
     append_row,
+    attempt,
     diff_dicts,
-    git_revision,
     move_aside,
-    package_versions,
     read_manifest,
     read_results,
     repair_tail,
     utc_now,
     write_json_atomic,
 )
-from torm.bench.rows import trial_failed
-from torm.bench.spec import BenchConfig, TrialSpec, build_grid, config_hash, identity, validate_for_trial_fn
-from torm.errors import BenchmarkError
+from torm.bench.rows import RETRY_STATUSES, trial_failed
+from torm.bench.spec import BenchConfig, TrialSpec, build_grid, identity, validate_for_trial_fn
+from torm.errors import BenchmarkError, ConfigError
 from torm.runtime import free_cores
 
 log = logging.getLogger(__name__)
 
-MANIFEST_FORMAT = "torm-bench/1"
+MANIFEST_FORMAT = "torm-bench/2"
+RETRY_MODES = ("failed",)
 
 
 def threads_per_trial(config: BenchConfig) -> int:
@@ -58,36 +69,74 @@ def threads_per_trial(config: BenchConfig) -> int:
     return config.threads or max(1, free_cores() // config.workers)
 
 
-def open_run(config: BenchConfig, out_dir: Path, grid: list[TrialSpec], fresh: bool = False) -> dict[str, Any]:
-    """Create or resume the run folder's manifest (see the module docstring); returns it (not yet saved)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+def bench_identity(config: BenchConfig, resolved: dict[str, Any] | None) -> dict[str, Any]:
+    """The benchmark part of the run identity: :data:`torm.bench.spec.IDENTITY_FIELDS`, without the ``--set``
+    strings when the trial module resolved them into ``resolved`` (equal configs spelt differently match)."""
+    ident = identity(config)
+    if resolved is not None:
+        ident.pop("overrides", None)
+    return ident
+
+
+def prepare_folder(out_dir: Path) -> None:
+    """Create the run folder; BenchmarkError naming the folder when that or writing in it fails."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BenchmarkError(f"cannot create the run folder {out_dir} ({exc.strerror}); choose another --out") from exc
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise BenchmarkError(f"the run folder {out_dir} is not writable; choose another --out or fix its permissions")
+
+
+def open_run(config: BenchConfig, out_dir: Path, ident: dict[str, Any], fresh: bool = False,
+             repairs: list[str] | None = None) -> dict[str, Any]:
+    """Create or resume the run folder's manifest for run identity ``ident`` (module docstring); returns it
+    (not yet saved). The caller holds the folder's lock. Repairs made are appended to ``repairs``."""
+    repairs = repairs if repairs is not None else []
     if fresh:
-        move_aside(out_dir)
+        moved = move_aside(out_dir)
+        if moved is not None:
+            repairs.append(f"--fresh: the previous results were moved to {moved}")
     manifest = read_manifest(out_dir)
     results = out_dir / RESULTS_NAME
+    digest = identity_hash(ident)
     if manifest is None:
         if results.exists() and results.stat().st_size > 0:
             raise BenchmarkError(f"{results} exists but {out_dir / MANIFEST_NAME} does not, so its config is "
                                  "unknown; choose another --out or pass --fresh to move the old files aside")
         return {"format": MANIFEST_FORMAT, "created": utc_now(), "config": config.as_dict(),
-                "config_hash": config_hash(config), "identity": identity(config), "sessions": []}
-    old_identity = manifest.get("identity") or {}
-    if manifest.get("config_hash") != config_hash(config):
-        lines = diff_dicts(old_identity, identity(config)) or ["(the stored config hash differs)"]
+                "identity_hash": digest, "identity": ident, "sessions": []}
+    if manifest.get("format") != MANIFEST_FORMAT:
+        raise BenchmarkError(f"{out_dir} was written by an older torm bench ({manifest.get('format')!r}, without a "
+                             "run identity), so its rows cannot be matched to this config and code; use another "
+                             "--out, or pass --fresh (moves the old results aside into old-<time>/)")
+    if manifest.get("identity_hash") != digest:
+        from torm.bench.results import _clean
+
+        lines = diff_dicts(manifest.get("identity") or {}, _clean(ident)) or ["(the stored identity hash differs)"]
         raise BenchmarkError(
-            f"{out_dir} holds results of a different benchmark config; changed:\n  " + "\n  ".join(lines)
-            + "\nrun with the original settings to resume, use another --out, or pass --fresh "
+            f"{out_dir} holds results of a different run (trial config, benchmark settings or code); changed:\n  "
+            + "\n  ".join(lines)
+            + "\nrun with the original config and code to resume, use another --out, or pass --fresh "
               "(moves the old results aside into old-<time>/)")
     grid_diff = diff_dicts({k: manifest["config"].get(k) for k in ("scenarios", "trials", "methods")},
                            {k: config.as_dict()[k] for k in ("scenarios", "trials", "methods")})
     if grid_diff:
         log.info("resuming %s with a changed grid (allowed): %s", out_dir, "; ".join(grid_diff))
+    for sess in manifest.get("sessions", []):
+        if sess.get("status") == "running":  # we hold the lock: whoever ran it is gone
+            sess["status"] = "killed"
+            sess["ended"] = sess.get("last_row") or manifest.get("updated") or sess.get("started")
+            repairs.append(f"session {sess.get('id')} (pid {sess.get('pid')} on {sess.get('host')}, started "
+                           f"{sess.get('started')}) was killed mid-run; marked 'killed' (its last row: "
+                           f"{sess.get('last_row') or 'none'})")
+            log.warning("%s: %s", out_dir, repairs[-1])
     manifest["config"] = config.as_dict()
     return manifest
 
 
 def run_benchmark(config: BenchConfig, out_dir: str | Path, fresh: bool = False, progress: bool = True,
-                  validate: bool = True) -> dict[str, Any]:
+                  validate: bool = True, retry: str | None = None) -> dict[str, Any]:
     """Run (or resume) the benchmark into ``out_dir``; returns a summary dict (JSON-ready).
 
     Args:
@@ -95,50 +144,77 @@ def run_benchmark(config: BenchConfig, out_dir: str | Path, fresh: bool = False,
         out_dir: the run folder.
         fresh: move existing results aside and start over instead of resuming.
         progress: show the tqdm bar on stderr.
-        validate: let the trial function's module check ``config.overrides`` first.
+        validate: let the trial function's module resolve and check ``config.overrides`` first.
+        retry: ``"failed"``: also run again the trials whose row is crashed, timeout or error.
     """
+    if retry is not None and retry not in RETRY_MODES:
+        raise ConfigError(f"retry must be one of {list(RETRY_MODES)}, got {retry!r}")
     out = Path(out_dir)
     grid = build_grid(config)
     resolved = validate_for_trial_fn(config) if validate else None
-    manifest = open_run(config, out, grid, fresh)
+    ident = run_identity(bench_identity(config, resolved), resolved)
+    prepare_folder(out)
+    with RunLock(out) as lock:
+        repairs: list[str] = []
+        if lock.stale:
+            repairs.append(f"stale lock of a bench that died without releasing it (pid {lock.stale.get('pid')} on "
+                           f"{lock.stale.get('host')}, since {lock.stale.get('started')}) was taken over")
+        manifest = open_run(config, out, ident, fresh, repairs)
+        return _run_locked(config, out, grid, manifest, resolved, retry, repairs, progress)
+
+
+def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest: dict[str, Any],
+                resolved: dict[str, Any] | None, retry: str | None, repairs: list[str],
+                progress: bool) -> dict[str, Any]:
     if resolved is not None:
         manifest["trial_config"] = resolved  # the base trial config; scenario/seed/method vary per trial
     results_path = out / RESULTS_NAME
-    repair_tail(results_path)
+    saved = repair_tail(results_path)
+    if saved is not None:
+        repairs.append(f"{results_path}: an incomplete last line (interrupted write) was cut off; its bytes are in "
+                       f"{saved}")
     existing = read_results(results_path)
-    for problem in existing.problems:
-        log.warning("%s", problem)
-    done_keys = existing.keys
-    pending = [s for s in grid if s.key not in done_keys]
+    repairs += [p for p in existing.problems if "is incomplete" not in p]  # read_results logged them once
+    by_key = {r["key"]: r for r in existing.rows}
+    retried = [s.key for s in grid if retry == "failed" and by_key.get(s.key, {}).get("status") in RETRY_STATUSES]
+    pending = [s for s in grid if s.key not in by_key or s.key in retried]
     threads = threads_per_trial(config)
     session: dict[str, Any] = {
         "id": len(manifest["sessions"]) + 1, "started": utc_now(), "finished": None, "status": "running",
         "engine": config.engine, "workers": config.workers, "threads": threads, "host": platform.node(),
-        "cpus": os.cpu_count(), "git": git_revision(), "versions": package_versions(),
+        "pid": os.getpid(), "cpus": os.cpu_count(), "retry": retry, "retried": len(retried),
         "pending_at_start": len(pending), "trials_run": 0, "argv": sys.argv,
     }
     manifest["sessions"].append(session)
-    manifest.update({"updated": utc_now(), "versions": session["versions"], "git": session["git"],
+    code = manifest["identity"]["code"]
+    manifest.update({"updated": utc_now(), "versions": code["packages"], "git": code["git"],
                      "grid": {"n_trials": len(grid), "scenarios": sorted({s.scenario for s in grid}),
                               "methods": list(config.methods)}})
     write_json_atomic(out / MANIFEST_NAME, manifest)
     job = TrialJob(trial_fn=config.trial_fn, overrides=config.overrides, timeout_s=config.timeout_s,
                    threads=threads, record=config.record, recordings_dir=str(out.resolve() / "recordings"),
-                   logs_dir=str(out.resolve() / "logs"), engine=config.engine, session=session["id"])
-    grid_keys = {s.key for s in grid}
-    prior = [r for r in existing.rows if r["key"] in grid_keys]
+                   logs_dir=str(out.resolve() / "logs"), engine=config.engine, session=session["id"],
+                   stop_grace_s=config.stop_grace_s)
+    prior = [r for k, r in by_key.items() if k in {s.key for s in grid} and k not in retried]
     n_obj = sum(int(r.get("n_objects") or 0) for r in prior)
     n_ok = sum(int(r.get("n_success") or 0) for r in prior)
     failed = sum(trial_failed(r) for r in prior)
     categories: dict[str, int] = {}
-    log.info("%s: %d trials in the grid, %d already done, %d to run on %s with %d worker(s), %d thread(s) each",
-             out, len(grid), len(grid) - len(pending), len(pending), config.engine, config.workers, threads)
-    bar = _progress_bar(len(grid), len(grid) - len(pending), progress)
+    n_done = len(grid) - len(pending)
+    log.info("%s: %d trials in the grid, %d already done, %d to run (%d retried) on %s with %d worker(s), "
+             "%d thread(s) each", out, len(grid), n_done, len(pending), len(retried), config.engine, config.workers,
+             threads)
+    bar = _progress_bar(len(grid), n_done, progress)
     status = "interrupted"
     rows = _engine_rows(config, pending, job)
     try:
         for row in rows:
-            append_row(results_path, row)
+            old = by_key.get(row["key"])
+            if old is not None:  # a retry: the next attempt, the old row stays in the file as history
+                row["attempt"] = attempt(old) + 1
+                row["retry_of"] = {"status": old.get("status"), "failure": old.get("failure"),
+                                   "session": (old.get("run") or {}).get("session")}
+            append_row(out / RESULTS_NAME, row)
             session["trials_run"] += 1
             n_obj += int(row.get("n_objects") or 0)
             n_ok += int(row.get("n_success") or 0)
@@ -164,10 +240,10 @@ def run_benchmark(config: BenchConfig, out_dir: str | Path, fresh: bool = False,
         session["status"] = status
         manifest["updated"] = session["finished"]
         write_json_atomic(out / MANIFEST_NAME, manifest)
-    return {"out": str(out), "trials_in_grid": len(grid), "already_done": len(grid) - len(pending),
+    return {"out": str(out), "trials_in_grid": len(grid), "already_done": n_done, "retried": retried,
             "ran": session["trials_run"], "failed_trials": failed, "objects": n_obj, "objects_success": n_ok,
             "success_rate": n_ok / n_obj if n_obj else None, "failure_categories_this_session": categories,
-            "problems": existing.problems, "session": session["id"]}
+            "repairs": repairs, "history_rows": len(existing.history), "session": session["id"]}
 
 
 def _engine_rows(config: BenchConfig, pending: list[TrialSpec], job: TrialJob) -> Iterator[dict[str, Any]]:
@@ -189,4 +265,4 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
                 smoothing=0.1)
 
 
-__all__ = ["open_run", "run_benchmark", "threads_per_trial"]
+__all__ = ["RETRY_MODES", "bench_identity", "open_run", "prepare_folder", "run_benchmark", "threads_per_trial"]

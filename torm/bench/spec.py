@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from torm.config import parse_override
+from torm.config import check_finite, parse_override
 from torm.errors import ConfigError, UnknownNameError
 
 METHODS: tuple[str, ...] = ("torm", "depth", "depth_fusion", "oracle")
@@ -99,6 +99,8 @@ class BenchConfig:
         trial_fn: ``module:function`` run per trial as ``fn(spec, overrides, record_path) -> dict``.
         base_seed: mixed into every trial seed; change it to draw a different set of scene layouts.
         threads: torch/BLAS threads per trial (0: free cores // workers, at least 1).
+        stop_grace_s: a worker that must stop (timeout, Ctrl-C, SIGTERM) gets SIGTERM and this long to run
+            its stop path (a real backend cancels the motion and disables the arm) before SIGKILL.
     """
 
     suite: str = "rw"
@@ -114,14 +116,18 @@ class BenchConfig:
     trial_fn: str = DEFAULT_TRIAL_FN
     base_seed: int = 0
     threads: int = 0
+    stop_grace_s: float = 10.0
 
     def __post_init__(self) -> None:
+        check_finite(self, "bench config")
         if self.trials < 1:
             raise ConfigError(f"trials must be >= 1, got {self.trials}")
         if self.workers < 1:
             raise ConfigError(f"workers must be >= 1, got {self.workers}")
         if not self.timeout_s > 0:
             raise ConfigError(f"timeout_s must be > 0 seconds, got {self.timeout_s}")
+        if not self.stop_grace_s >= 0:
+            raise ConfigError(f"stop_grace_s must be >= 0 seconds, got {self.stop_grace_s}")
         if self.threads < 0:
             raise ConfigError(f"threads must be >= 0 (0 = automatic), got {self.threads}")
         if not self.methods:
@@ -164,7 +170,8 @@ class BenchConfig:
         return cls(**kw)
 
 
-# Fields that define what a trial *is* (its seed, its config, its code). Changing one of these
+# Benchmark fields that define what a trial *is* (its seed, its config, its code); with the resolved trial
+# config and the code version they make the run identity (torm.bench.identity). Changing one of these
 # between invocations on the same run folder makes old and new rows incomparable: refused unless
 # --fresh. The grid extent (scenarios, trials, methods) and how it runs (workers, engine, ...) may change.
 IDENTITY_FIELDS: tuple[str, ...] = ("suite", "overrides", "trial_fn", "base_seed", "timeout_s")

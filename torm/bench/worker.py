@@ -6,16 +6,25 @@ JOB.json holds ``{"spec": TrialSpec dict, "overrides": [...], "trial_fn": "modul
 function raises, ``{"status": "error", "failure": category, "message": ..., "traceback": ...}`` to
 ``result_path`` (atomically), then leaves with ``os._exit(0)`` so no library teardown can hang it.
 Anything that kills the process before that (segfault, ``os._exit``, the OOM killer) leaves no result
-file: the parent records ``crashed``. A watchdog thread ends the worker when its parent dies, so a
-SIGKILLed runner leaves no orphans computing for nobody.
+file: the parent records ``crashed``.
+
+Stopping: SIGTERM raises :class:`TrialTerminated` in the trial (once; later SIGTERMs are ignored so the
+clean-up is not cut short), so every ``finally`` runs: ``run_trial`` closes its backend, and the real
+backend's ``close`` cancels the arm's motion and disables it. The runner sends SIGTERM on a timeout, on
+Ctrl-C / SIGTERM of the bench and when the runner fails, and SIGKILLs after its grace period. A
+watchdog thread notices when the parent died (a SIGKILLed runner) and stops the worker the same way
+(SIGTERM to itself, SIGKILL-equivalent ``os._exit`` after ``stop_grace_s``), so no orphan computes (or
+moves an arm) for nobody.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import shutil
+import signal
 import sys
 import threading
 import time
@@ -24,6 +33,20 @@ from pathlib import Path
 from typing import Any
 
 log = logging.getLogger("torm.bench.worker")
+
+
+class TrialTerminated(BaseException):  # noqa: N818 - like KeyboardInterrupt, a request to stop, not an error
+    """Raised in the trial by SIGTERM: a BaseException, so ``except Exception`` in a trial does not swallow it."""
+
+
+def install_sigterm_handler() -> None:
+    """SIGTERM raises :class:`TrialTerminated` in the main thread, the first time only."""
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the clean-up must not be interrupted again
+        raise TrialTerminated(f"worker {os.getpid()} received SIGTERM")
+
+    signal.signal(signal.SIGTERM, handler)
 
 
 def failure_category(exc: BaseException) -> str:
@@ -40,8 +63,12 @@ def failure_category(exc: BaseException) -> str:
     return "error"
 
 
-def _watch_parent(parent: int, scratch: Path | None = None, interval_s: float = 1.0) -> None:
-    """Exit (after removing the job's scratch folder, which the dead parent cannot) once ``parent`` is gone.
+ORPHANED = threading.Event()
+
+
+def _watch_parent(parent: int, scratch: Path | None = None, interval_s: float = 1.0, grace_s: float = 10.0) -> None:
+    """Once ``parent`` is gone: SIGTERM this process (the trial's clean-up runs), and after ``grace_s``
+    remove the job's scratch folder (which the dead parent cannot) and exit.
 
     ``parent`` is the pid the runner wrote into the job, so a parent that died before this thread
     started is noticed too (``os.getppid()`` would already name the reaper).
@@ -51,6 +78,10 @@ def _watch_parent(parent: int, scratch: Path | None = None, interval_s: float = 
         while True:
             time.sleep(interval_s)
             if os.getppid() != parent:
+                ORPHANED.set()
+                log.error("the benchmark runner (pid %d) is gone; stopping the trial", parent)
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(grace_s)
                 if scratch is not None:
                     shutil.rmtree(scratch, ignore_errors=True)
                 os._exit(137)
@@ -80,6 +111,10 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(record, dict):
             raise TypeError(f"trial function {job['trial_fn']} returned {type(record).__name__}, not a dict")
         return {"status": "ok", "record": record}
+    except TrialTerminated as exc:
+        log.error("trial %s stopped: %s", spec.key, exc)
+        return {"status": "error", "failure": "terminated", "message": f"stopped by SIGTERM ({exc})",
+                "traceback": traceback.format_exc()[-4000:]}
     except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - every failure becomes a recorded category
         tb = traceback.format_exc()
         log.error("trial %s failed: %s", spec.key, tb)
@@ -92,14 +127,20 @@ def main(argv: list[str] | None = None) -> int:
     if len(args) != 1:
         sys.stderr.write("usage: python -m torm.bench.worker JOB.json\n")
         return 2
+    install_sigterm_handler()
     job_path = Path(args[0])
     job = json.loads(job_path.read_text())
-    _watch_parent(int(job.get("parent_pid") or os.getppid()),
-                  job_path.parent if job_path.parent.name.startswith("torm-trial-") else None)
+    scratch = job_path.parent if job_path.parent.name.startswith("torm-trial-") else None
     logging.basicConfig(level=os.environ.get("TORM_BENCH_LOG_LEVEL", "INFO"), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    _watch_parent(int(job.get("parent_pid") or os.getppid()), scratch, grace_s=float(job.get("stop_grace_s", 10.0)))
     result = run_job(job)
-    _write_atomic(Path(job["result_path"]), result)
+    if ORPHANED.is_set():  # nobody reads the result: clean up and leave
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+        return 137
+    with contextlib.suppress(TrialTerminated):  # a SIGTERM now: the runner decides the row without a result
+        _write_atomic(Path(job["result_path"]), result)
     return 0
 
 

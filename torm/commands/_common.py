@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import re
 import sys
+import tempfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from torm.errors import OutputError
 
 
 def plain(doc: str | None) -> str:
@@ -92,3 +98,36 @@ def dumps_json(obj: Any) -> str:
 def print_json(obj: Any) -> None:
     """Write ``obj`` as indented JSON to stdout (floats rounded to 6 significant digits, numpy values converted)."""
     sys.stdout.write(dumps_json(obj) + "\n")
+
+
+def check_output_file(path: str | os.PathLike, flag: str = "--out") -> Path:
+    """Make sure ``path`` can be written before any work starts; returns it. OutputError naming ``flag`` when not.
+
+    Creates the parent folder when missing and writes (then removes) a probe file in it; an existing
+    file must be a writable regular file.
+    """
+    p = Path(path).expanduser()
+    if p.is_dir():
+        raise OutputError(f"{flag} {p} is a folder; give a file name")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=p.parent, prefix=f".{p.name}.", suffix=".probe"):
+            pass
+    except OSError as exc:
+        raise OutputError(f"{flag} {p}: cannot write in {p.parent} ({exc.strerror or exc}); choose a writable "
+                          "location") from exc
+    if p.exists() and not os.access(p, os.W_OK):
+        raise OutputError(f"{flag} {p} exists and is not writable; choose another file")
+    return p
+
+
+def write_json_file(path: Path, obj: Any, flag: str = "--out") -> None:
+    """Write ``obj`` as indented JSON to ``path`` atomically (temp file + rename); OutputError when it fails."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(dumps_json(obj) + "\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise OutputError(f"{flag} {path}: writing failed ({exc.strerror or exc})") from exc

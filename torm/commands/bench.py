@@ -7,10 +7,15 @@ Examples::
     torm bench --suite syn --trials 1 --set reconstruction.grid_res=64 --timeout 900 --out runs/syn-g64
 
 Re-running the same command resumes: finished trials (by key ``suite/scenario/trial/method``) are
-skipped. A changed config (suite, --set overrides, timeout, trial function, base seed) is refused
-with the differences listed unless ``--fresh``, which moves the old files into ``old-<time>/``.
+skipped; ``--retry failed`` also runs again the trials whose row is crashed, timeout or error (the old
+rows stay in results.jsonl as history). A changed run identity (the fully resolved trial config and
+the files it names, suite, timeout, trial function, base seed, the git commit / uncommitted changes
+and dependency versions) is refused with the differences listed unless ``--fresh``, which moves the
+old files into ``old-<time>/``. One bench per folder: a second one is refused (naming the holder).
 Each trial runs in its own process with a time limit; timeouts, crashes and exceptions become
-failure rows. Prints a JSON summary on stdout; then ``torm report OUT`` makes the tables and plots.
+failure rows. Ctrl-C / SIGTERM stop the workers with SIGTERM (a real backend cancels the motion and
+disables the arm) and ``--stop-grace`` seconds before SIGKILL. Prints a JSON summary on stdout
+(including the repairs made to the folder); then ``torm report OUT`` makes the tables and plots.
 """
 
 from __future__ import annotations
@@ -41,6 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--record", choices=RECORD_MODES, default="none",
                    help="rerun recordings per trial: none (default), failures (kept for failed trials), all")
     p.add_argument("--fresh", action="store_true", help="move existing results aside and start over")
+    p.add_argument("--retry", choices=("failed",), default=None,
+                   help="failed: also run again trials whose row is crashed, timeout or error (old rows kept)")
+    p.add_argument("--stop-grace", type=float, default=10.0, metavar="S",
+                   help="seconds a stopping worker gets between SIGTERM and SIGKILL (default 10)")
     p.add_argument("--threads", type=int, default=0, help="threads per trial (default: free cores / workers)")
     p.add_argument("--base-seed", type=int, default=0, help="mixed into every trial seed (default 0)")
     p.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN,
@@ -66,6 +75,7 @@ def trial_overrides(args: argparse.Namespace) -> tuple[str, ...]:
 
 
 def _on_sigterm(signum: int, frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the workers' stop path must not be cut short
     raise KeyboardInterrupt
 
 
@@ -77,11 +87,11 @@ def run(args: argparse.Namespace) -> int:
         suite=args.suite, scenarios=parse_list(args.scenario), trials=args.trials,
         methods=parse_list(args.method) or ("torm",), workers=args.workers, engine=args.engine,
         ray_address=args.ray_address, timeout_s=args.timeout, record=args.record, overrides=trial_overrides(args),
-        trial_fn=args.trial_fn, base_seed=args.base_seed, threads=args.threads,
+        trial_fn=args.trial_fn, base_seed=args.base_seed, threads=args.threads, stop_grace_s=args.stop_grace,
     )
     previous = signal.signal(signal.SIGTERM, _on_sigterm)  # SIGTERM stops the workers like Ctrl-C
     try:
-        summary = run_benchmark(config, args.out, fresh=args.fresh, progress=not args.no_progress)
+        summary = run_benchmark(config, args.out, fresh=args.fresh, progress=not args.no_progress, retry=args.retry)
     finally:
         signal.signal(signal.SIGTERM, previous)
     print_json(summary)

@@ -21,8 +21,19 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
+import threading
+from typing import Any
 
-from torm.commands._common import add_overrides, add_parser, add_record, add_robot, dumps_json, print_json
+from torm.commands._common import (
+    add_overrides,
+    add_parser,
+    add_record,
+    add_robot,
+    check_output_file,
+    print_json,
+    write_json_file,
+)
 
 log = logging.getLogger(__name__)
 
@@ -70,15 +81,30 @@ def trial_config_from_args(args: argparse.Namespace):
     return cfgmod.from_dict(TrialConfig, data, overrides + list(args.overrides), where=args.config or "TrialConfig")
 
 
-def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+def _on_sigterm(signum: int, frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the backend's stop path must not be cut short
+    raise KeyboardInterrupt
 
+
+def run(args: argparse.Namespace) -> int:
+    from torm.errors import OutputError
     from torm.pipeline import run_trial
 
     cfg = trial_config_from_args(args)
-    result = run_trial(cfg, record=args.record)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(dumps_json(result))
-    print_json(result)
+    out = check_output_file(args.out, "--out") if args.out else None  # before the trial, not after it
+    if args.record:
+        check_output_file(args.record, "--record")
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if main_thread else None  # clean-up on SIGTERM too
+    try:
+        result = run_trial(cfg, record=args.record)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
+    print_json(result)  # first: the result is on stdout even if writing the file fails
+    if out is not None:
+        try:
+            write_json_file(out, result, "--out")
+        except OutputError as exc:
+            raise OutputError(f"{exc}; the result was printed on stdout") from exc
     return 0

@@ -136,8 +136,11 @@ class RealBackend:
             if hardware.armed and not hardware.dry_run and hardware.enable_on_start:
                 arm.enable()
                 arm.switch_controller("trajectory")
-            if hardware.gripper.activate and hasattr(self.gripper, "activate") and not hardware.dry_run:
+            # gated like the arm: an unarmed backend activates nothing (activation moves the fingers)
+            if hardware.gripper.activate and hardware.armed and not hardware.dry_run:
                 self.gripper.activate()
+            elif hardware.gripper.activate and not hardware.dry_run:
+                log.info("gripper not activated: the backend is not armed")
         except BaseException:
             self.close()
             raise
@@ -280,11 +283,14 @@ class RealBackend:
         return operator_prompt if self.hardware.operator_confirm else None
 
     def close(self) -> None:
-        """Stop the arm, close the camera and the connections (idempotent)."""
+        """The stop path (also on SIGTERM in a bench worker): cancel every arm goal and disable the arm
+        (``disable_on_close``), then close the camera and the connections (idempotent)."""
+        inner = getattr(getattr(self, "arm", None), "inner", None)
+        if isinstance(inner, InovoArm) and not getattr(self, "_stopped", False):
+            self._stopped = True
+            inner.shutdown(disable=self.hardware.disable_on_close)
         for obj in reversed(self._owned):
             try:
-                if isinstance(obj, InovoArm):
-                    obj.stop()
                 obj.close()
             except Exception as exc:  # keep closing the rest
                 log.warning("closing %s failed: %s", type(obj).__name__, exc)
@@ -305,7 +311,10 @@ def make_inovo_arm(robot_config: Any, hw: HardwareConfig, command_log: CommandLo
                     disable_on_fault=hw.disable_on_fault, joint_states_topic=hw.joint_states_topic,
                     tcp_pose_topic=hw.tcp_pose_topic, action_ns=hw.action_ns, enable_service=hw.enable_service,
                     disable_service=hw.disable_service, switch_controller_service=hw.switch_controller_service,
-                    switch_controller_arg=hw.switch_controller_arg)
+                    switch_controller_arg=hw.switch_controller_arg, stream=hw.stream,
+                    accel_limits=hw.speed_scale * np.asarray(a.acceleration_limits, float),
+                    path_tolerance_rad=hw.path_tolerance_rad, goal_tolerance_rad=hw.goal_tolerance_rad,
+                    goal_time_tolerance_s=hw.goal_time_tolerance_s)
 
 
 def make_robotiq_gripper(hw: HardwareConfig, command_log: CommandLog):
@@ -317,7 +326,7 @@ def make_robotiq_gripper(hw: HardwareConfig, command_log: CommandLog):
     cal = GripperCalibration.load(g.calibration) if g.calibration else None
     transport = open_serial(g.device, g.baudrate, g.timeout_s)
     client = ModbusRTUClient(transport, g.slave, port_label=f"{g.device} @ {g.baudrate}")
-    return RobotiqGripper(client, cal, move_timeout_s=g.move_timeout_s, command_log=command_log)
+    return RobotiqGripper(client, cal, move_timeout_s=g.move_timeout_s, command_log=command_log, armed=hw.armed)
 
 
 def make_real_backend(trial_config: Any = None, hardware: HardwareConfig | None = None) -> RealBackend:

@@ -8,8 +8,9 @@ Example ``hardware.yaml`` (paths relative to the YAML's folder)::
     dry_run: false            # log planned motions, send nothing
     speed_scale: 0.25         # fraction of the joint speed/acceleration limits
     command_log: logs/hardware_commands.jsonl
-    gripper: {device: /dev/ttyUSB0, calibration: robotiq_cal.yaml}
+    gripper: {device: /dev/ttyUSB0, calibration: robotiq_cal.yaml}   # or socket://host:port (RS-485 gateway)
     camera: {hand_eye: hand_eye.yaml}
+    stream: {horizon_s: 0.3, period_s: 0.1}   # the arm stops by itself <= horizon + braking after the link dies
 
 Where the config comes from (:func:`resolve_hardware_config`): the trial config's
 ``hardware_config`` field when it has one, else the environment variable ``TORM_HARDWARE_CONFIG``.
@@ -25,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from torm.config import from_dict, load_yaml
+from torm.config import check_finite, from_dict, load_yaml
 from torm.errors import ConfigError
+from torm.hardware.streaming import StreamSettings
 
 ENV_CONFIG = "TORM_HARDWARE_CONFIG"
 ENV_ARMED = "TORM_ARM_ROBOT"
@@ -111,6 +113,12 @@ class HardwareConfig:
         command_log: JSONL file every command is appended to (None: memory only).
         enable_on_start: when armed, call /robot/enable and switch to the trajectory controller on start.
         disable_on_fault: call /robot/disable (besides cancelling the goal) when the watchdog trips.
+        disable_on_close: call /robot/disable (after cancelling every goal) when the backend closes, which
+            a bench worker also does on SIGTERM.
+        path_tolerance_rad, goal_tolerance_rad, goal_time_tolerance_s: sent with every trajectory goal; the
+            controller aborts and holds when the tracking error exceeds them (0 = the controller's default).
+        stream: how motions are streamed in chunks that end at rest (:class:`StreamSettings`); the arm stops
+            on its own at most ``stream.horizon_s`` + the braking time after the last chunk arrived.
         switch_controller_arg: request field name of /robot/switch_controller (unpublished; check with
             ``rosservice args /robot/switch_controller``).
         workspace_min, workspace_max: TCP safety box (m) in the robot base frame.
@@ -128,6 +136,10 @@ class HardwareConfig:
     command_log: str | None = "hardware_commands.jsonl"
     enable_on_start: bool = True
     disable_on_fault: bool = True
+    disable_on_close: bool = True
+    path_tolerance_rad: float = 0.1
+    goal_tolerance_rad: float = 0.01
+    goal_time_tolerance_s: float = 0.5
     joint_states_topic: str = "/joint_states"
     tcp_pose_topic: str = "/default_move_group/tcp_pose"
     action_ns: str = "/robot/joint_trajectory_controller/follow_joint_trajectory"
@@ -138,17 +150,29 @@ class HardwareConfig:
     workspace_min: tuple[float, float, float] = (-0.2, -0.6, 0.0)
     workspace_max: tuple[float, float, float] = (1.0, 0.6, 1.0)
     operator_confirm: bool = False
+    stream: StreamSettings = field(default_factory=StreamSettings)
     gripper: GripperSettings = field(default_factory=GripperSettings)
     camera: CameraSettings = field(default_factory=CameraSettings)
     capture: RealCaptureSettings = field(default_factory=RealCaptureSettings)
 
     def __post_init__(self) -> None:
+        check_finite(self, "hardware config")
         if not self.host:
             raise ConfigError("hardware config: 'host' (the Inovo controller's address running rosbridge) is empty")
         if not 0 < self.port < 65536:
             raise ConfigError(f"hardware config: port {self.port} must be 1..65535 (rosbridge default 9090)")
         if not 0.0 < self.speed_scale <= 1.0:
             raise ConfigError(f"hardware config: speed_scale must be in (0, 1], got {self.speed_scale}")
+        peak = self.speed_scale * (1.05 + self.stream.brake_fraction)
+        if peak > 1.0:
+            raise ConfigError(
+                f"hardware config: speed_scale {self.speed_scale} with stream.brake_fraction "
+                f"{self.stream.brake_fraction} lets a braking tail accelerate at up to {peak:.2f} x the joint "
+                "acceleration limits (speed_scale x (1.05 + brake_fraction)); lower speed_scale or brake_fraction "
+                "so the product stays <= 1")
+        if min(self.path_tolerance_rad, self.goal_tolerance_rad, self.goal_time_tolerance_s) < 0:
+            raise ConfigError("hardware config: path_tolerance_rad, goal_tolerance_rad and goal_time_tolerance_s "
+                              "must be >= 0 (0 = the controller's default)")
         for name in ("watchdog_s", "connect_timeout_s", "result_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"hardware config: {name} must be positive (s)")

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 import yaml
 
+from torm.config import parse_yaml
 from torm.errors import CaptureError, ConfigError, UnknownNameError
 from torm.hardware.handeye_solvers import METHOD_NAMES, solve_ax_xb
 
@@ -153,7 +154,7 @@ def _read_mapping(path: str | Path) -> dict[str, Any]:
     if not p.is_file():
         raise ConfigError(f"{p} does not exist")
     text = p.read_text()
-    data = json.loads(text) if p.suffix == ".json" else yaml.safe_load(text)
+    data = json.loads(text) if p.suffix == ".json" else parse_yaml(text)
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a mapping at the top level")
     return data

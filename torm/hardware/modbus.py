@@ -158,13 +158,17 @@ class ModbusRTUClient:
 
 
 def open_serial(device: str, baudrate: int = 115200, timeout_s: float = 0.2) -> ByteTransport:
-    """Open ``device`` (e.g. ``/dev/ttyUSB0``) as 8N1 at ``baudrate``, read timeout (s); HardwareError if absent."""
+    """Open ``device`` as 8N1 at ``baudrate`` with a read timeout (s); HardwareError if absent.
+
+    ``device`` is a serial port (``/dev/ttyUSB0``) or any pyserial URL (``socket://host:port`` for an
+    RS-485-to-Ethernet gateway passing raw RTU frames, ``rfc2217://host:port``).
+    """
     try:
         import serial
     except ImportError as exc:
         raise HardwareError("pyserial is not installed; pip install 'torm[hardware]'") from exc
     try:
-        return serial.Serial(device, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, timeout=timeout_s)
-    except (serial.SerialException, OSError) as exc:
+        return serial.serial_for_url(device, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, timeout=timeout_s)
+    except (serial.SerialException, OSError, ValueError) as exc:
         raise HardwareError(f"cannot open serial port {device}: {exc}; check the USB/RS-485 adapter is plugged in, "
                             "the device path (ls /dev/ttyUSB*) and that your user is in the 'dialout' group") from exc

@@ -13,6 +13,10 @@ Width: each unit maps counts to the pad gap differently (the real endpoints afte
 3 and 230 counts). :class:`GripperCalibration` stores the measured open/closed counts and widths (a
 linear map between them); :meth:`RobotiqGripper.calibrate` measures them by closing fully (nothing
 between the fingers!) and opening fully. Speed 20-150 mm/s and force 20-235 N map linearly to 0..255.
+
+Arming: exactly like the arm, an unarmed gripper (``armed=False``, the default) writes no action
+register at all (activation, moves and calibration all move the fingers): it raises
+``HardwareError("not armed: ...")`` and records a ``refused`` command. Reading the status is allowed.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import numpy as np
 import yaml
 
 from torm.backend.protocol import GripperState
+from torm.config import parse_yaml
 from torm.errors import ConfigError, HardwareError
 from torm.hardware.modbus import ModbusRTUClient
 
@@ -143,7 +148,7 @@ class GripperCalibration:
         p = Path(path)
         if not p.is_file():
             raise ConfigError(f"gripper calibration file {p} does not exist; run RobotiqGripper.calibrate() first")
-        data = yaml.safe_load(p.read_text()) or {}
+        data = parse_yaml(p.read_text()) or {}
         body = data.get("robotiq_2f85_calibration")
         if not isinstance(body, dict):
             raise ConfigError(f"{p}: expected a 'robotiq_2f85_calibration' mapping")
@@ -163,12 +168,14 @@ class RobotiqGripper:
         move_timeout_s: longest wait for a move to finish (s).
         activate_timeout_s: longest wait for the activation to complete (s).
         command_log: optional callable ``(kind, payload)`` recording every command (the JSONL log).
+        armed: allow writes of the action register (anything that moves the fingers); False refuses them.
     """
 
     def __init__(self, client: ModbusRTUClient, calibration: GripperCalibration | None = None,
                  poll_s: float = 0.02, move_timeout_s: float = 5.0, activate_timeout_s: float = 10.0,
-                 command_log=None) -> None:
+                 command_log=None, armed: bool = False) -> None:
         self.client = client
+        self.armed = bool(armed)
         self.calibration = calibration or GripperCalibration()
         self.poll_s = poll_s
         self.move_timeout_s = move_timeout_s
@@ -191,6 +198,11 @@ class RobotiqGripper:
 
     def _write(self, rACT: int, rGTO: int, rPR: int, rSP: int, rFR: int) -> None:
         regs = action_registers(rACT, rGTO, rPR, rSP, rFR)
+        if not self.armed:  # the one place the action register is written: nothing moves unarmed
+            self._record("refused", command="robotiq_write", reason="not armed", address=ACTION_REGISTER,
+                         registers=regs)
+            raise HardwareError("not armed: refusing to command the gripper (activation or a finger move); pass "
+                                "--arm-robot (or armed: true in the hardware config) once the workspace is clear")
         self._record("robotiq_write", address=ACTION_REGISTER, registers=regs)
         self.client.write_registers(ACTION_REGISTER, regs)
 

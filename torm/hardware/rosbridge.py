@@ -5,9 +5,13 @@ Protocol (HARDWARE.md; ROS 1 Noetic behind rosbridge v2 JSON):
 - state: ``/joint_states`` (sensor_msgs/JointState) and ``/default_move_group/tcp_pose`` (PoseStamped);
 - services: ``/robot/enable``, ``/robot/disable`` (std_srvs/Trigger), ``/robot/switch_controller``
   (``"trajectory"`` | ``"velocity"`` | ``"zerog"``);
-- motion: a control_msgs/FollowJointTrajectory goal published on the actionlib topic
-  ``<action_ns>/goal`` (FollowJointTrajectoryActionGoal), result on ``<action_ns>/result``, cancel on
-  ``<action_ns>/cancel`` (actionlib_msgs/GoalID).
+- motion: control_msgs/FollowJointTrajectory goals published on the actionlib topic
+  ``<action_ns>/goal`` (FollowJointTrajectoryActionGoal), results on ``<action_ns>/result``, cancel on
+  ``<action_ns>/cancel`` (actionlib_msgs/GoalID). A motion is **streamed** as short goals that each end
+  at rest (:mod:`torm.hardware.streaming`): a new goal replaces the running one every ``period_s``;
+  when none arrives (link down, process dead or hung) the controller finishes the last one and
+  stands still within :attr:`InovoArm.stop_within_s`. Each goal carries per-joint path and goal
+  tolerances and a goal time tolerance, so the controller aborts (and holds) when tracking fails.
 
 Safety, on top of :class:`~torm.backend.safety.SafeArm` (which every backend's arm goes through):
 
@@ -17,6 +21,8 @@ Safety, on top of :class:`~torm.backend.safety.SafeArm` (which every backend's a
 - a watchdog thread stops the arm (cancel goal, optionally /robot/disable) when no /joint_states
   message arrived for ``watchdog_s`` or the websocket drops; after that every command raises
   HardwareError until a new :class:`InovoArm` is made;
+- :meth:`InovoArm.shutdown` (what the backend's ``close`` calls, also on SIGTERM) cancels every goal and
+  calls /robot/disable;
 - every command (sent, refused, or withheld in a dry run) is appended to a JSONL :class:`CommandLog`.
 
 Forward kinematics uses the robot config's MuJoCo model (the same MJCF as the simulator), so the TCP pose
@@ -36,10 +42,12 @@ import mujoco
 import numpy as np
 
 from torm.backend.protocol import ArmState
+from torm.backend.safety import lever_arms_from_mujoco
 from torm.errors import HardwareError
 from torm.geometry import quat_wxyz_to_R
 from torm.hardware.command_log import CommandLog
 from torm.hardware.rosbridge_client import RosbridgeClient
+from torm.hardware.streaming import StreamPlan, StreamSettings
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +58,7 @@ CANCEL_TYPE = "actionlib_msgs/GoalID"
 #: actionlib_msgs/GoalStatus codes.
 STATUS_NAMES = {0: "PENDING", 1: "ACTIVE", 2: "PREEMPTED", 3: "SUCCEEDED", 4: "ABORTED", 5: "REJECTED",
                 6: "PREEMPTING", 7: "RECALLING", 8: "RECALLED", 9: "LOST"}
-SUCCEEDED = 3
+PREEMPTED, SUCCEEDED = 2, 3
 TERMINAL = {2, 3, 4, 5, 8, 9}
 
 
@@ -81,6 +89,7 @@ class MujocoKinematics:
         self._tcp = self.model.site(tcp_site).id
         self._flange = self.model.site(flange_site).id
         self._lock = threading.Lock()
+        self.joint_names, self.tcp_site = tuple(joint_names), tcp_site
 
     def _site(self, q: np.ndarray, sid: int) -> np.ndarray:
         q = np.asarray(q, float)
@@ -100,6 +109,10 @@ class MujocoKinematics:
     def flange(self, q: np.ndarray) -> np.ndarray:
         return self._site(q, self._flange)
 
+    def tcp_lever_arms(self) -> np.ndarray | None:
+        """(n,) m/rad bounds on the TCP's distance from each joint axis (:func:`lever_arms_from_mujoco`)."""
+        return lever_arms_from_mujoco(self.model, self.joint_names, self.tcp_site)
+
 
 class InovoArm:
     """The real Inovo arm through rosbridge.
@@ -115,6 +128,11 @@ class InovoArm:
         result_timeout_s: slack after the trajectory duration for the action result (s).
         command_log: where commands are recorded (a :class:`CommandLog`).
         disable_on_fault: also call the disable service when the watchdog trips.
+        stream: how motions are cut into chunks that end at rest (:class:`StreamSettings`).
+        accel_limits: (n,) rad/s^2 the braking tails are scaled from (the safety layer's speed_scale x
+            qdd_max; None: each trajectory's own peak acceleration).
+        path_tolerance_rad, goal_tolerance_rad, goal_time_tolerance_s: sent with every goal (controller-side
+            abort when the tracking error exceeds them; 0 = the controller's defaults).
         topics/services: see :class:`torm.hardware.config.HardwareConfig`.
     """
 
@@ -126,8 +144,16 @@ class InovoArm:
                  action_ns: str = "/robot/joint_trajectory_controller/follow_joint_trajectory",
                  enable_service: str = "/robot/enable", disable_service: str = "/robot/disable",
                  switch_controller_service: str = "/robot/switch_controller",
-                 switch_controller_arg: str = "data") -> None:
+                 switch_controller_arg: str = "data", stream: StreamSettings | None = None,
+                 accel_limits: np.ndarray | None = None, path_tolerance_rad: float = 0.1,
+                 goal_tolerance_rad: float = 0.01, goal_time_tolerance_s: float = 0.5) -> None:
         self.joint_names: tuple[str, ...] = tuple(joint_names)
+        self.stream = stream or StreamSettings()
+        self.accel_limits = None if accel_limits is None else np.asarray(accel_limits, float)
+        self.path_tolerance_rad, self.goal_tolerance_rad = float(path_tolerance_rad), float(goal_tolerance_rad)
+        self.goal_time_tolerance_s = float(goal_time_tolerance_s)
+        #: Stop bound (s) of the motion last sent: the arm is at rest this long after the last chunk arrived.
+        self.stop_within_s: float | None = None
         self.kin = kinematics
         self.armed, self.dry_run = bool(armed), bool(dry_run)
         self.watchdog_s = float(watchdog_s)
@@ -303,8 +329,19 @@ class InovoArm:
         """Flange pose T_world_flange (4, 4) for joints ``q`` (n,) rad."""
         return self.kin.flange(q)
 
+    def tcp_lever_arms(self) -> np.ndarray | None:
+        """(n,) m/rad for the safety layer's path check (from the robot model)."""
+        return self.kin.tcp_lever_arms() if hasattr(self.kin, "tcp_lever_arms") else None
+
+    def _tolerances(self, value: float) -> list[dict[str, Any]]:
+        return [{"name": j, "position": value, "velocity": 0.0, "acceleration": 0.0} for j in self.joint_names]
+
     def goal_message(self, times_s: np.ndarray, q_txn: np.ndarray, goal_id: str) -> dict[str, Any]:
-        """The FollowJointTrajectoryActionGoal for waypoints ``q_txn`` (T, n) rad at ``times_s`` (T,) s from now."""
+        """The FollowJointTrajectoryActionGoal for waypoints ``q_txn`` (T, n) rad at ``times_s`` (T,) s from now.
+
+        Position-only points (the controller interpolates linearly between them, the path the safety layer
+        checked), per-joint path and goal tolerances (rad) and the goal time tolerance (s).
+        """
         stamp = {"secs": 0, "nsecs": 0}
         points = [{"positions": [float(v) for v in q], "velocities": [], "accelerations": [], "effort": [],
                    "time_from_start": ros_duration(float(t))} for t, q in zip(times_s, q_txn, strict=True)]
@@ -314,20 +351,27 @@ class InovoArm:
             "goal": {
                 "trajectory": {"header": {"seq": 0, "stamp": stamp, "frame_id": ""},
                                "joint_names": list(self.joint_names), "points": points},
-                "path_tolerance": [], "goal_tolerance": [], "goal_time_tolerance": ros_duration(0.5),
+                "path_tolerance": self._tolerances(self.path_tolerance_rad),
+                "goal_tolerance": self._tolerances(self.goal_tolerance_rad),
+                "goal_time_tolerance": ros_duration(self.goal_time_tolerance_s),
             },
         }
 
     def follow_trajectory(self, times_s: np.ndarray, q_txn: np.ndarray) -> ArmState:
-        """Send the waypoints as one FollowJointTrajectory goal and block until its result (or a fault)."""
+        """Stream the waypoints as chunks that end at rest (module docstring); block until the motion is done.
+
+        Raises HardwareError (after cancelling) on a fault, an aborted chunk, a stream that fell behind
+        (the arm then brakes to a stop on its own) or a missing final result.
+        """
         times_s = np.asarray(times_s, float).reshape(-1)
         q_txn = np.atleast_2d(np.asarray(q_txn, float))
         if q_txn.shape != (len(times_s), len(self.joint_names)):
             raise HardwareError(f"trajectory needs ({len(times_s)}, {len(self.joint_names)}) joint values, "
                                 f"got {q_txn.shape}")
         self._check_ok("follow_trajectory")
+        q0 = self.state().q
         summary = {"n_points": len(times_s), "duration_s": float(times_s[-1]) if len(times_s) else 0.0,
-                   "q_start": self.state().q, "q_end": q_txn[-1] if len(q_txn) else None}
+                   "q_start": q0, "q_end": q_txn[-1] if len(q_txn) else None}
         if self.dry_run:
             self.log.write("dry_run", command="follow_trajectory", times_s=times_s, q=q_txn, **summary)
             log.info("dry run: trajectory of %d points over %.2f s not sent", len(times_s), summary["duration_s"])
@@ -335,40 +379,98 @@ class InovoArm:
                 self._virtual_q = q_txn[-1].copy()
             return self.state()
         self._require_armed("follow a trajectory", **summary)
-        self._goal_counter += 1
-        gid = f"torm-{self._goal_counter}-{time.time():.6f}"
-        msg = self.goal_message(times_s, q_txn, gid)
-        self.log.write("send_goal", topic=f"{self.action_ns}/goal", goal_id=gid, times_s=times_s, q=q_txn, **summary)
-        self._active_goal = gid
-        self.client.publish(f"{self.action_ns}/goal", msg)
-        deadline = time.monotonic() + float(times_s[-1]) + self.result_timeout_s
+        if not len(times_s):
+            return self.state()
+        plan = StreamPlan(q0, times_s, q_txn, self.accel_limits, self.stream)
         with self._result_cv:
-            while gid not in self._results and self.fault is None:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._result_cv.wait(min(left, 0.05))
-            result = self._results.pop(gid, None)
+            self._results.clear()
+        self.stop_within_s = plan.stop_within_s
+        self._goal_counter += 1
+        tid = f"torm-{self._goal_counter}-{time.time():.6f}"
+        self.log.write("send_trajectory", trajectory=tid, times_s=times_s, q=q_txn, stop_within_s=plan.stop_within_s,
+                       brake_s=plan.brake_s, **summary)
+        try:
+            final_gid = self._stream(plan, tid)
+            result = self._wait_result(final_gid, time.monotonic() + self.result_timeout_s + plan.duration_s)
+        except BaseException:
+            self.stop()  # a fault, a refused chunk, Ctrl-C / SIGTERM in the middle: cancel what runs
+            raise
         t_result = time.monotonic()
-        self._active_goal = None if result is not None else gid
-        if self.fault is not None:
-            raise HardwareError(f"trajectory {gid} aborted: the arm was stopped ({self.fault})")
-        if result is None:
-            self.stop()
-            wait_s = float(times_s[-1]) + self.result_timeout_s
-            raise HardwareError(f"no result for trajectory {gid} within {wait_s:.1f} s; the goal was cancelled. "
-                                "Is the trajectory controller active "
-                                "(switch_controller('trajectory'))?")
+        self._active_goal = None
         status = int((result.get("status") or {}).get("status", -1))
         res = result.get("result") or {}
-        self.log.write("goal_result", goal_id=gid, status=status, error_code=res.get("error_code"),
+        self.log.write("goal_result", goal_id=final_gid, status=status, error_code=res.get("error_code"),
                        error_string=res.get("error_string", ""))
         if status != SUCCEEDED or int(res.get("error_code", 0)) != 0:
-            raise HardwareError(f"trajectory {gid} ended {STATUS_NAMES.get(status, status)} (error_code "
+            raise HardwareError(f"trajectory {tid} ended {STATUS_NAMES.get(status, status)} (error_code "
                                 f"{res.get('error_code')}: {res.get('error_string', '')!r}; "
                                 f"{(result.get('status') or {}).get('text', '')})")
         self._wait_fresh_joint_states(t_result)
         return self.state()
+
+    def _stream(self, plan: StreamPlan, tid: str) -> str:
+        """Send the plan's chunks every ``period_s`` until the last one; returns the last chunk's goal id."""
+        s = self.stream
+        w0 = time.monotonic()
+        last_send, k, replaced = w0, 0, set()  # replaced: chunks whose PREEMPTED result is still due
+        while True:
+            now = time.monotonic()
+            if k and now - last_send > s.horizon_s - s.lead_s:
+                raise HardwareError(
+                    f"trajectory {tid}: chunk {k} is {now - last_send:.3f} s after the previous one, beyond its "
+                    f"{s.horizon_s} s horizon; the arm braked to a stop on its own and the motion was abandoned "
+                    "(is the machine overloaded? raise stream.horizon_s)")
+            rel, qs, final = plan.chunk(now - w0)
+            gid = f"{tid}.{k}"
+            self._active_goal = gid
+            try:
+                self.client.publish(f"{self.action_ns}/goal", self.goal_message(rel, qs, gid))
+            except HardwareError as exc:
+                self._trip(f"streaming chunk {k} of trajectory {tid} failed ({exc})")
+                raise HardwareError(f"trajectory {tid}: the link failed while streaming ({exc}); the arm was stopped: "
+                                    f"it comes to rest on its own within {plan.stop_within_s:.2f} s of the last "
+                                    "chunk it received") from exc
+            self.log.write("send_goal", topic=f"{self.action_ns}/goal", goal_id=gid, chunk=k, final=final,
+                           t_plan=now - w0, n_points=len(rel), until_s=float(rel[-1]))
+            if k:
+                replaced.add(f"{tid}.{k - 1}")
+            last_send, k = now, k + 1
+            if final:
+                return gid
+            self._watch_chunks(replaced, last_send + s.period_s, tid)
+
+    def _watch_chunks(self, replaced: set[str], until: float, tid: str) -> None:
+        """Wait until monotonic ``until``; HardwareError on a fault or a result other than PREEMPTED for a
+        replaced chunk (a replaced chunk that SUCCEEDED means the arm ran into its braking tail)."""
+        with self._result_cv:
+            while True:
+                self._check_ok("follow_trajectory")
+                for gid in [g for g in replaced if g in self._results]:
+                    replaced.discard(gid)
+                    msg = self._results.pop(gid)
+                    status = int((msg.get("status") or {}).get("status", -1))
+                    if status != PREEMPTED:
+                        text = (msg.get("status") or {}).get("text", "")
+                        raise HardwareError(f"trajectory {tid}: chunk {gid} ended {STATUS_NAMES.get(status, status)} "
+                                            f"while the next one was streamed ({text!r}); the motion was stopped")
+                left = until - time.monotonic()
+                if left <= 0:
+                    return
+                self._result_cv.wait(min(left, 0.05))
+
+    def _wait_result(self, gid: str, deadline: float) -> dict[str, Any]:
+        with self._result_cv:
+            while gid not in self._results:
+                self._check_ok("follow_trajectory")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise HardwareError(f"no result for trajectory goal {gid} by its end + {self.result_timeout_s} s; "
+                                        "the goal was cancelled. Is the trajectory controller active "
+                                        "(switch_controller('trajectory'))?")
+                self._result_cv.wait(min(left, 0.05))
+            msg = self._results.pop(gid)
+            self._results.clear()  # the replaced chunks' PREEMPTED results
+            return msg
 
     def _wait_fresh_joint_states(self, since: float) -> None:
         """Block until a /joint_states message newer than ``since`` (monotonic s) arrived (at most ``watchdog_s``)."""
@@ -395,8 +497,21 @@ class InovoArm:
         if self.client.connected:
             self._send_cancel()
 
+    def shutdown(self, disable: bool = True, timeout_s: float = 2.0) -> None:
+        """The stop path: cancel every goal, then /robot/disable (when ``disable``, armed and not a dry run).
+
+        Allowed when faulted; errors are logged, not raised (it runs in ``close`` and on SIGTERM).
+        """
+        try:
+            self.stop()
+            if disable and self.armed and not self.dry_run and self.client.connected:
+                self.log.write("call_service", service=self.disable_service, args={}, reason="shutdown")
+                self.client.call_service(self.disable_service, {}, timeout_s=timeout_s)
+        except HardwareError as exc:
+            log.error("stopping the arm on shutdown failed: %s", exc)
+
     def close(self) -> None:
-        """Stop the watchdog and close the websocket (no motion command is sent)."""
+        """Stop the watchdog and close the websocket (no motion command is sent; see :meth:`shutdown`)."""
         self._stop_watchdog.set()
         self.log.write("close")
         self.client.close()

@@ -1,0 +1,65 @@
+"""SIGTERM to ``torm bench --backend real`` stops the arm: the worker runs its stop path (cancel + disable)
+before the grace period ends. The arm is the fake rosbridge server's modelled controller, the gripper a
+fake Modbus gripper on a loopback socket; the bench, its worker and the real backend are the real code."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from sim.robot_config import load_robot_config
+from torm.bench.results import read_manifest, read_results
+from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
+from torm.testing.fake_rosbridge import ACTION, FakeRosbridge
+
+TESTS_DIR = str(Path(__file__).resolve().parent)
+
+
+def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path):
+    rcfg = load_robot_config("inovo_2f85")
+    ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
+    gripper = FakeRobotiq()
+    modbus = FakeRobotiqServer(gripper)
+    hw = tmp_path / "hw.yaml"
+    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\nwatchdog_s: 2.0\ncommand_log: cmd.jsonl\n"
+                  f"gripper: {{device: '{modbus.url}'}}\nstream: {{horizon_s: 1.0}}\n")  # robust on a loaded machine
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "torm.cli", "bench", "--suite", "rw", "--scenario", "rw1", "--trials", "1",
+           "--method", "torm", "--out", str(out), "--trial-fn", "bench_fake_trials:real_arm", "--backend", "real",
+           "--hardware-config", str(hw), "--arm-robot", "--set", "fake.move_s=60", "--no-progress",
+           "--stop-grace", "20"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (TESTS_DIR, os.environ.get("PYTHONPATH")) if p)}
+    bench = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(ros.goals()) < 3 and bench.poll() is None:
+            time.sleep(0.05)
+        assert len(ros.goals()) >= 3, bench.communicate(timeout=30)[1][-3000:]  # the arm is moving
+        assert gripper.writes[:2] == [[0, 0, 0], [0x0100, 0, 0]]  # armed: the gripper was activated
+        t_term = time.monotonic()
+        bench.send_signal(signal.SIGTERM)
+        _, err = bench.communicate(timeout=60)
+        assert bench.returncode == 130, err[-3000:]  # "torm: interrupted"
+        # the worker's stop path reached the controller: cancel every goal, then disable the arm
+        after = ros.msgs(since=t_term)
+        kinds = [("cancel" if m.get("topic") == f"{ACTION}/cancel" else m.get("service"))
+                 for m in after if m["op"] == "call_service" or m.get("topic") == f"{ACTION}/cancel"]
+        assert "cancel" in kinds and "/robot/disable" in kinds
+        assert kinds.index("cancel") < kinds.index("/robot/disable")
+        assert [m["msg"]["id"] for m in after if m.get("topic") == f"{ACTION}/cancel"][-1] == ""
+        # no motion was commanded after the cancel, and the modelled arm stands still
+        i_cancel = next(i for i, m in enumerate(after) if m.get("topic") == f"{ACTION}/cancel")
+        assert not [m for m in after[i_cancel:] if m.get("topic") == f"{ACTION}/goal"]
+        assert ros.controller.end_time() <= time.monotonic()
+        # the interrupted trial left no row (it runs again on resume) and the session says why it ended
+        assert read_results(out / "results.jsonl").rows == []
+        assert [s["status"] for s in read_manifest(out)["sessions"]] == ["interrupted"]
+    finally:
+        if bench.poll() is None:
+            bench.kill()
+        ros.close()
+        modbus.close()
