@@ -40,8 +40,10 @@ def server():
 TEST_STREAM = StreamSettings(horizon_s=0.6)
 
 
-def make_arm(port: int, armed: bool = True, dry_run: bool = False, watchdog_s: float = 1.0,
+def make_arm(port: int, armed: bool = True, dry_run: bool = False, watchdog_s: float = 10.0,
              log: CommandLog | None = None, speed_scale: float = 0.25) -> InovoArm:
+    """The adapter against the fake server. The watchdog is generous (10 s) except in the test about it: the
+    fake's joint-state thread can starve for over a second on a loaded 2-core machine."""
     kin = MujocoKinematics(RCFG.mjcf, JOINTS, RCFG.arm.tcp_site, RCFG.arm.flange_site)
     return InovoArm("127.0.0.1", port, JOINTS, kin, armed=armed, dry_run=dry_run, watchdog_s=watchdog_s,
                     connect_timeout_s=5.0, result_timeout_s=2.0, command_log=log or CommandLog(None),
@@ -128,7 +130,7 @@ def test_arm_stops_by_itself_when_the_link_dies_mid_trajectory(how):
     """The link goes silent (or the socket drops) 1 s into a 3 s motion: no stop command can arrive, yet the
     modelled controller brings the arm to rest within the arm's stated bound, short of the goal."""
     srv = FakeRosbridge(RCFG.arm.home_q, JOINTS)
-    arm = make_arm(srv.port)
+    arm = make_arm(srv.port, watchdog_s=1.0)  # the watchdog is what notices the silent link
     try:
         q0 = arm.state().q
         times, q = _long_move(q0)
