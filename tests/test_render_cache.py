@@ -50,6 +50,11 @@ def test_object_poses_change_the_scene_digest():
     w.model.body_pos[1] += [0.001, 0, 0]  # the glass box moves 1 mm
     assert describe_world(w).digest() != d0
     assert describe_world(w, layout_seed=99).digest() != describe_world(w).digest()
+    # the appearance seed (table texture, lights) reaches the scene and so the key
+    from sim.render import MitsubaRenderer
+
+    a, b = MitsubaRenderer(w, FAST), MitsubaRenderer(w, FAST, appearance_seed=99)
+    assert a.scene()[1].lighting.params != b.scene()[1].lighting.params
 
 
 def test_mismatched_entry_is_refused_with_a_warning(tmp_path, caplog):
