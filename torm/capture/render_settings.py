@@ -21,8 +21,8 @@ INTEGRATORS = ("glass_path", "path")
 #: Mitsuba samplers: ``ldsampler`` (low-discrepancy, Kollig & Keller's (0, 2)-sequence) halved the RMSE of
 #: ``independent`` at 16 spp at the same speed (measured here: 4.8 vs 9.1 grey levels on rw3).
 SAMPLERS = ("ldsampler", "independent", "multijitter", "stratified")
-#: Sample counts the ldsampler accepts (square powers of two).
-LDSAMPLER_SPP = (1, 4, 16, 64, 256, 1024, 4096)
+#: Sample counts the ldsampler accepts (square powers of two, at least 4: it renders 1 as 4).
+LDSAMPLER_SPP = (4, 16, 64, 256, 1024, 4096)
 #: Denoisers applied to the tone-mapped 8-bit image: ``none``; ``nlmeans`` = OpenCV's
 #: ``fastNlMeansDenoisingColored`` with strength ``denoise_strength``; ``bilateral`` = OpenCV's bilateral filter.
 DENOISERS = ("none", "nlmeans", "bilateral")
