@@ -16,7 +16,7 @@ from tests.render_helpers import camera, tiny_world
 FAST = PbrSettings(spp=4, max_depth=4, denoise="none")
 # a different valid value for every settings field
 CHANGED = {"spp": 64, "max_depth": 5, "rr_depth": 2, "integrator": "path", "sampler": "independent",
-           "denoise": "bilateral",
+           "denoise": "nlmeans",
            "denoise_strength": 7.0, "render_scale": 0.5, "variant": "scalar_rgb", "threads": 1, "exposure": 2.0,
            "cache": False}
 

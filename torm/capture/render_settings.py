@@ -57,8 +57,8 @@ class PbrSettings:
     rr_depth: int = 5
     integrator: str = "glass_path"
     sampler: str = "ldsampler"
-    denoise: str = "nlmeans"
-    denoise_strength: float = 5.0
+    denoise: str = "bilateral"
+    denoise_strength: float = 10.0
     render_scale: float = 1.0
     variant: str = "auto"
     threads: int = 0
