@@ -6,20 +6,22 @@ and 2 render threads:
 1. **Reference**: ``--ref-spp`` (256) spp renders of ``--noise-views`` views, plus the same views with the
    objects removed (the empty table, for the proxy segmenter); linear radiance cached under
    ``$TORM_CACHE_DIR/bench_render``: a re-run reuses them.
-2. **spp sweep** (``--spps``): wall time per view (render + tone map + denoise, median over the views, after one
+2. **spp sweep** (``--spps``: 4, 16, 64, the ldsampler's square powers of two): wall and CPU time per view
+   (render + tone map + denoise, median over the views, after one
    warm-up render that compiles the kernels) and noise against the reference for every denoiser: RMSE in 8-bit
    grey levels (whole image and inside the glass silhouettes), PSNR, Canny edge F1 (1 px tolerance) and the
    **segmenter proxy**: IoU between a pixel-reading segmenter's masks on the test render and on the reference.
-   The default proxy is background subtraction (|render - empty-table reference| > 12 grey levels on any channel,
-   3x3 opening): it reads pixels, glass shows up through refraction, and noise flips its decisions like it would
-   flip a learned segmenter's. ``--segmenter MODULE:FUNCTION`` replaces it by any ``f(rgb_hxwx3 uint8) -> mask
-   (H, W)`` (e.g. the learned segmenter when it exists); the IoU is then over its foreground (mask > 0).
-   Every image of a view is tone-mapped with its reference's auto-exposure gain.
-   **Chosen setting**: the cheapest (spp, denoiser) whose proxy IoU agreement is >= ``--agreement`` (0.98) on
-   every noise view.
+   The default proxy is background subtraction (5x5 Gaussian on both, |render - empty-table reference| > 12 grey
+   levels on any channel, 3x3 opening, components >= 30 px): it reads pixels, glass shows up through refraction,
+   and noise flips its decisions like it would flip a learned segmenter's. ``--segmenter MODULE:FUNCTION``
+   replaces it by any ``f(rgb_hxwx3 uint8) -> mask (H, W)`` (e.g. the learned segmenter when it exists); the IoU
+   is then over its foreground (mask > 0). Every image of a view is tone-mapped with its reference's
+   auto-exposure gain. **Chosen setting**: the cheapest (spp, denoiser) in CPU seconds whose proxy IoU agreement
+   is >= ``--agreement`` (0.98) on every noise view.
 3. **Resolution sweep** at the chosen setting: 320x180, 640x360, 1280x720.
 4. **50-view capture** through ``SimCameraRig`` + ``MitsubaRenderer`` (``capture.renderer=pbr``) at the chosen
-   setting into an empty cache folder, then the same capture again (every view a cache hit).
+   setting (the default ``PbrSettings`` when the chosen one costs > 6 CPU s per view) into an empty cache
+   folder, then the same capture again (every view a cache hit).
 5. ``render_side_by_side.png``: the same view rendered by MuJoCo and by the PBR renderer (chosen setting).
 
 Writes ``benchmarks/results/render.json`` and ``render.md``. Run under the shared lock (about 8 minutes on a
@@ -49,7 +51,12 @@ import numpy as np  # noqa: E402
 log = logging.getLogger("bench.render")
 
 DENOISERS = ("none", "nlmeans", "bilateral")
+#: settings that shape the linear radiance (the reference cache key)
+LINEAR_FIELDS = ("max_depth", "rr_depth", "integrator", "sampler", "render_scale", "variant")
 BGSUB_THRESHOLD = 12  # grey levels
+MIN_COMPONENT_PX = 30
+#: the capture uses the chosen setting unless it costs more CPU s per view than this (then the default)
+CAPTURE_CPU_CAP_S = 6.0
 RESOLUTIONS = ((320, 180), (640, 360), (1280, 720))
 
 
@@ -60,7 +67,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--cache", type=Path, default=None, help="render cache for the reference (default TORM_CACHE_DIR)")
     p.add_argument("--scenario", default="rw3")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--spps", nargs="+", type=int, default=[2, 4, 8, 16, 32])
+    p.add_argument("--spps", nargs="+", type=int, default=[4, 16, 64], help="ldsampler: 4, 16, 64, 256...")
     p.add_argument("--ref-spp", type=int, default=256)
     p.add_argument("--noise-views", type=int, default=3)
     p.add_argument("--capture-views", type=int, default=50)
@@ -70,18 +77,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=bc.THREADS)
     a = p.parse_args(argv)
     if a.quick:
-        a.spps, a.ref_spp, a.noise_views, a.capture_views, a.scale = [2, 4], 16, 2, 4, 0.125
+        a.spps, a.ref_spp, a.noise_views, a.capture_views, a.scale = [4], 16, 2, 4, 0.125
     return a
 
 
 # ---------------------------------------------------------------------------------------------- metrics
 def bgsub_segmenter(background: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """Background subtraction against the empty-table reference: any channel off by > 12 levels, 3x3 opening."""
+    """Background subtraction against the empty-table reference: 5x5 Gaussian (sigma 1 px) on both, any channel
+    off by > 12 levels, 3x3 opening, components under 30 px dropped (a segmenter reads neighbourhoods too)."""
     kernel = np.ones((3, 3), np.uint8)
+    bg = cv2.GaussianBlur(background.astype(np.float32), (5, 5), 1.0)
 
     def seg(rgb: np.ndarray) -> np.ndarray:
-        d = np.abs(rgb.astype(np.int16) - background.astype(np.int16)).max(axis=2) > BGSUB_THRESHOLD
-        return cv2.morphologyEx(d.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
+        d = np.abs(cv2.GaussianBlur(rgb.astype(np.float32), (5, 5), 1.0) - bg).max(axis=2) > BGSUB_THRESHOLD
+        m = cv2.morphologyEx(d.astype(np.uint8), cv2.MORPH_OPEN, kernel)
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        keep = np.zeros(n, bool)
+        keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_COMPONENT_PX
+        return keep[lab]
 
     return seg
 
@@ -117,15 +130,27 @@ def noise_metrics(img: np.ndarray, ref: np.ndarray, glass: np.ndarray, seg: Call
 
 
 # ---------------------------------------------------------------------------------------------- parts
-def render_views(r: Any, cams: list, settings: Any) -> tuple[list[np.ndarray], list[float]]:
-    """RGB of every camera with ``settings`` (cache off) and the wall time of each (s)."""
+class Clock:
+    """Wall and process-CPU seconds of a block (CPU time counts every thread of this process)."""
+
+    def __enter__(self) -> Clock:
+        self.w, self.c = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall, self.cpu = time.perf_counter() - self.w, time.process_time() - self.c
+
+
+def render_views(r: Any, cams: list, settings: Any) -> tuple[list[float], list[float]]:
+    """Render every camera with ``settings`` (cache off); wall and CPU seconds of each."""
     r.settings = settings
-    imgs, times = [], []
+    wall, cpu = [], []
     for cam in cams:
-        t = time.perf_counter()
-        imgs.append(r.render([cam], instance=False)[0].rgb)
-        times.append(time.perf_counter() - t)
-    return imgs, times
+        with Clock() as c:
+            r.render([cam], instance=False)
+        wall.append(c.wall)
+        cpu.append(c.cpu)
+    return wall, cpu
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -135,7 +160,6 @@ def main(argv: list[str] | None = None) -> int:
         os.environ["TORM_CACHE_DIR"] = str(a.cache)
     from sim.camera_rig import CameraRigConfig, SimCameraRig
     from sim.render import MitsubaRenderer, PbrSettings, RenderCache, RenderCamera, cache_key, cache_root, make_renderer
-    from sim.render.cache import settings_for_key
     from sim.render.mitsuba_env import find_libllvm
     from sim.render.mitsuba_renderer import auto_exposure_gain, denoise, render_linear, tone_map
     from sim.render.scene import load_scene
@@ -162,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                   if k not in pbr.shape_instances}))
     key = cache_key({"bench": "render-reference", "scene": pbr.description.digest(), "spp": a.ref_spp,
                      "cams": [[c.K, c.T_world_cam, c.width, c.height] for c in cams], "variant": r.variant,
-                     "mitsuba": r.mi.__version__, "settings": settings_for_key(base)})
+                     "mitsuba": r.mi.__version__, "linear": {k: getattr(base, k) for k in LINEAR_FIELDS}})
     ref_file = cache_root() / "bench_render" / f"{key}.npz"
     if ref_file.exists():
         with np.load(ref_file) as z:
@@ -186,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     segs = [hook or bgsub_segmenter(bg) for bg in bgs]
     seg_refs = [s(ref) for s, ref in zip(segs, refs, strict=True)]
     doc["reference"] = {"spp": a.ref_spp, "seconds": time.perf_counter() - t0,
-                        "proxy": a.segmenter or f"background subtraction (> {BGSUB_THRESHOLD} levels, 3x3 opening)",
+                        "proxy": a.segmenter or (f"background subtraction (5x5 Gaussian, > {BGSUB_THRESHOLD} levels, "
+                                                 f"3x3 opening, components >= {MIN_COMPONENT_PX} px)"),
                         "proxy_foreground_px": [int(s.sum()) for s in seg_refs]}
     log.info("reference ready in %.1f s", doc["reference"]["seconds"])
 
@@ -201,24 +226,27 @@ def main(argv: list[str] | None = None) -> int:
         r.render(cams[:1], instance=False)
         compile_s = time.perf_counter() - t
         mi_scene, _ = r.scene()
-        lins, t_render = [], []
+        lins, t_render, c_render = [], [], []
         for i, cam in enumerate(cams):
-            t = time.perf_counter()
-            lins.append(render_linear(mi_scene, cam, s, 1000 + i))
-            t_render.append(time.perf_counter() - t)
+            with Clock() as c:
+                lins.append(render_linear(mi_scene, cam, s, 1000 + i))
+            t_render.append(c.wall)
+            c_render.append(c.cpu)
         for dn in DENOISERS:
             strengths = [0.0] if dn == "none" else [5.0, 10.0]
             for strength in strengths:
-                imgs, t_post = [], []
+                imgs, t_post, c_post = [], [], []
                 for lin, g in zip(lins, gains, strict=True):
-                    t = time.perf_counter()
-                    imgs.append(denoise(tone_map(lin, g), dn, strength))
-                    t_post.append(time.perf_counter() - t)
+                    with Clock() as c:
+                        imgs.append(denoise(tone_map(lin, g), dn, strength))
+                    t_post.append(c.wall)
+                    c_post.append(c.cpu)
                 m = [noise_metrics(img, ref, g, sg, sr) for img, ref, g, sg, sr
                      in zip(imgs, refs, glass, segs, seg_refs, strict=True)]
                 row = {"spp": spp, "denoise": dn, "strength": strength,
                        "s_per_view": float(np.median(np.add(t_render, t_post))),
                        "render_s": float(np.median(t_render)), "post_s": float(np.median(t_post)),
+                       "cpu_s_per_view": float(np.median(np.add(c_render, c_post))),
                        "first_view_s": compile_s,
                        **{k: _mean([x[k] for x in m]) for k in m[0]},
                        "proxy_iou_min": float(min(x["proxy_iou"] for x in m))}
@@ -227,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
                          row["s_per_view"], row["rmse"], row["proxy_iou_min"])
     doc["sweep"] = rows
     ok = [x for x in rows if x["proxy_iou_min"] >= a.agreement]
-    chosen = min(ok, key=lambda x: x["s_per_view"]) if ok else max(rows, key=lambda x: x["proxy_iou_min"])
+    chosen = min(ok, key=lambda x: x["cpu_s_per_view"]) if ok else max(rows, key=lambda x: x["proxy_iou_min"])
     doc["chosen"] = {"spp": chosen["spp"], "denoise": chosen["denoise"], "strength": chosen["strength"],
                      "meets_agreement": bool(ok), "agreement": a.agreement, "s_per_view": chosen["s_per_view"]}
     default = PbrSettings()
@@ -244,9 +272,10 @@ def main(argv: list[str] | None = None) -> int:
     for w, h in ((160, 90), (320, 180)) if a.quick else RESOLUTIONS:
         cfg = CameraRigConfig(n_views=a.capture_views, width=w, height=h)
         rc = [RenderCamera(cfg.K(), cfg.poses()[i], w, h) for i in pick]
-        _, ts = render_views(r, rc[:1], chosen_s)
-        _, ts = render_views(r, rc, chosen_s)
-        res_rows.append({"width": w, "height": h, "s_per_view": float(np.median(ts))})
+        render_views(r, rc[:1], chosen_s)
+        ts, cs = render_views(r, rc, chosen_s)
+        res_rows.append({"width": w, "height": h, "s_per_view": float(np.median(ts)),
+                         "cpu_s_per_view": float(np.median(cs))})
         log.info("%dx%d: %.2f s/view", w, h, res_rows[-1]["s_per_view"])
     doc["resolution"] = res_rows
 
@@ -254,20 +283,21 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         cache = RenderCache(Path(tmp))
         cap_s = dataclasses.replace(chosen_s, cache=True)
+        if chosen["cpu_s_per_view"] > CAPTURE_CPU_CAP_S:  # keep the run bounded: capture at the default setting
+            cap_s = dataclasses.replace(default, threads=a.threads, cache=True)
+        doc["capture_settings"] = {"spp": cap_s.spp, "denoise": cap_s.denoise, "strength": cap_s.denoise_strength}
         rr = MitsubaRenderer(world, cap_s, cache=cache)
         with SimCameraRig.from_world(world, rig_cfg, rgb_renderer=rr) as rig:
-            t = time.perf_counter()
-            cap = rig.capture()
-            t_cap = time.perf_counter() - t
-            t = time.perf_counter()
-            rig.capture()
-            t_hit = time.perf_counter() - t
-        with SimCameraRig.from_world(world, rig_cfg) as plain:
-            t = time.perf_counter()
+            with Clock() as c_cap:
+                cap = rig.capture()
+            with Clock() as c_hit:
+                rig.capture()
+        with SimCameraRig.from_world(world, rig_cfg) as plain, Clock() as c_mj:
             plain.capture()
-            t_mj = time.perf_counter() - t
-    doc["capture"] = {"views": len(cap), "width": W, "height": H, "seconds": t_cap, "cache_hit_seconds": t_hit,
-                      "mujoco_seconds": t_mj, "renderer": cap.metadata["renderer"], "stats": rr.stats}
+    t_cap, t_hit, t_mj = c_cap.wall, c_hit.wall, c_mj.wall
+    doc["capture"] = {"views": len(cap), "width": W, "height": H, "seconds": t_cap, "cpu_seconds": c_cap.cpu,
+                      "cache_hit_seconds": t_hit, "mujoco_seconds": t_mj, "renderer": cap.metadata["renderer"],
+                      "stats": rr.stats}
     log.info("capture %d views: %.1f s; from the cache %.2f s; MuJoCo %.2f s", len(cap), t_cap, t_hit, t_mj)
 
     # 5. side by side (MuJoCo | PBR) of one view
@@ -308,16 +338,20 @@ def markdown(doc: dict[str, Any]) -> str:
            f"{ch['s_per_view']:.2f} s per view; proxy agreement >= {ch['agreement']} on every view: "
            f"{ch['meets_agreement']}.\n",
            "\n## spp sweep (median per view; noise vs the reference, mean over views)\n"]
-    rows = [[x["spp"], x["denoise"], x["strength"], x["s_per_view"], x["render_s"], x["post_s"], x["rmse"],
-             x["rmse_glass"], x["psnr_db"], x["edge_f1"], x["proxy_iou"], x["proxy_iou_min"]] for x in doc["sweep"]]
-    out.append(bc.md_table(["spp", "denoise", "strength", "s/view", "render s", "post s", "RMSE", "RMSE glass",
-                            "PSNR dB", "edge F1", "proxy IoU", "proxy IoU min"], rows, 3))
+    rows = [[x["spp"], x["denoise"], x["strength"], x["s_per_view"], x["cpu_s_per_view"], x["render_s"], x["post_s"],
+             x["rmse"], x["rmse_glass"], x["psnr_db"], x["edge_f1"], x["proxy_iou"], x["proxy_iou_min"]]
+            for x in doc["sweep"]]
+    out.append(bc.md_table(["spp", "denoise", "strength", "wall s/view", "CPU s/view", "render s", "post s", "RMSE",
+                            "RMSE glass", "PSNR dB", "edge F1", "proxy IoU", "proxy IoU min"], rows, 3))
+    out.append("\nCPU s/view counts every thread: on 2 free cores the wall time is at least CPU s / 2.\n")
     out.append("\n## Resolution (chosen setting)\n")
-    out.append(bc.md_table(["width", "height", "s/view"], [[x["width"], x["height"], x["s_per_view"]]
-                                                         for x in doc["resolution"]], 2))
+    out.append(bc.md_table(["width", "height", "wall s/view", "CPU s/view"],
+                           [[x["width"], x["height"], x["s_per_view"], x["cpu_s_per_view"]]
+                            for x in doc["resolution"]], 2))
     cap = doc["capture"]
     out.append(f"\n## Capture\n{cap['views']} views {cap['width']}x{cap['height']} through the rig "
-               f"(`{cap['renderer']}`): **{cap['seconds']:.1f} s** (RGB from PBR; depth + masks from MuJoCo, "
+               f"(`{cap['renderer']}`): **{cap['seconds']:.1f} s** wall, {cap['cpu_seconds']:.1f} CPU s "
+               f"(RGB from PBR; depth + masks from MuJoCo, "
                f"cache writes included); again from the render cache: **{cap['cache_hit_seconds']:.2f} s**; "
                f"MuJoCo-only capture: {cap['mujoco_seconds']:.2f} s.\n")
     out.append(f"\nSide by side (MuJoCo | PBR), view {doc['side_by_side']['view']}: "

@@ -107,9 +107,9 @@ def test_trial_config_threads_the_renderer_to_the_backend(tmp_path, monkeypatch)
 
     monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path))
     cfg = config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=[
-        "capture.renderer=pbr", "capture.n_views=1", "capture.scale=0.05", "capture.pbr.spp=2",
+        "capture.renderer=pbr", "capture.n_views=1", "capture.scale=0.05", "capture.pbr.spp=4",
         "capture.pbr.denoise=none"])
-    assert cfg.capture.pbr.spp == 2
+    assert cfg.capture.pbr.spp == 4
     backend = make_backend(cfg)
     try:
         assert backend.renderer == "pbr"
@@ -130,7 +130,7 @@ def test_extra_emitters_render_a_projected_dot_pattern_in_a_dark_room():
 
     w = tiny_world()
     cam = camera(width=64, height=48)
-    r = MitsubaRenderer(w, dataclasses.replace(FAST, spp=8))
+    r = MitsubaRenderer(w, dataclasses.replace(FAST, spp=4))
     dots = (np.random.default_rng(0).random((64, 64)) > 0.9).astype(np.float32)
     T_proj = cam.T_world_cam.copy()
     T_proj[:3, 3] += cam.T_world_cam[:3, 0] * 0.05  # 5 cm to the camera's right
@@ -156,8 +156,8 @@ def test_capture_command_renders_pbr_rgb(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path / "cache"))
     out = tmp_path / "cap"
     assert main(["capture", "--scenario", "rw1", "--views", "2", "--width", "64", "--height", "36", "--robot",
-                 "none", "--renderer", "pbr", "--spp", "2", "--no-occlusion", "--out", str(out)]) == 0
+                 "none", "--renderer", "pbr", "--spp", "4", "--no-occlusion", "--out", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["views"] == 2
     cap = load_capture(out)
-    assert cap.metadata["renderer"].startswith("pbr mitsuba") and "spp 2" in cap.metadata["renderer"]
+    assert cap.metadata["renderer"].startswith("pbr mitsuba") and "spp 4" in cap.metadata["renderer"]
     assert cap.views[0].rgb.shape == (36, 64, 3) and cap.masks().max() == 1

@@ -167,16 +167,19 @@ class MitsubaRenderer:
         settings: the render settings (default :class:`PbrSettings`).
         cache: a :class:`RenderCache` (default: ``$TORM_CACHE_DIR/renders``); unused when ``settings.cache`` is off.
         centre: workspace centre (m) the lights face.
+        appearance_seed: seed of the table texture and the lighting (default: the world's layout seed), e.g. to
+            render one layout under many looks for a training set; part of the scene digest (cache key).
     """
 
     name = "pbr"
 
     def __init__(self, world: Any, settings: PbrSettings | None = None, cache: RenderCache | None = None,
-                 centre: tuple[float, float, float] = (0.55, 0.0, 0.0)) -> None:
+                 centre: tuple[float, float, float] = (0.55, 0.0, 0.0), appearance_seed: int | None = None) -> None:
         self.world = world
         self.settings = settings or PbrSettings()
         self.cache = cache if cache is not None else RenderCache()
         self.centre = centre
+        self.appearance_seed = appearance_seed
         self.mi, self.variant = load_mitsuba(self.settings.variant, self.settings.threads or free_cores())
         self._loaded: tuple[str, Any, PbrScene] | None = None
         self.stats = {"rendered": 0, "cache_hits": 0, "render_s": 0.0}
@@ -194,7 +197,7 @@ class MitsubaRenderer:
     def scene(self, *, extra_emitters: Mapping[str, dict] | None = None, env_scale: float = 1.0,
               area_scale: float = 1.0) -> tuple[Any, PbrScene]:
         """``(loaded Mitsuba scene, PbrScene)`` of the world's current state (reloaded only when it changed)."""
-        desc = describe_world(self.world, centre=self.centre)
+        desc = describe_world(self.world, layout_seed=self.appearance_seed, centre=self.centre)
         tag = self._scene_tag(desc.digest(), extra_emitters, env_scale, area_scale)
         if self._loaded is not None and self._loaded[0] == tag:
             return self._loaded[1], self._loaded[2]
@@ -248,7 +251,7 @@ class MitsubaRenderer:
         Cached views (same inputs, see :mod:`sim.render.cache`) are loaded instead of rendered.
         """
         expo = self.settings.exposure if exposure is None else float(exposure)
-        desc_digest = describe_world(self.world, centre=self.centre).digest()
+        desc_digest = describe_world(self.world, layout_seed=self.appearance_seed, centre=self.centre).digest()
         out: list[RenderedView] = []
         for cam in cameras:
             t0 = time.perf_counter()

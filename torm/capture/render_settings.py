@@ -21,6 +21,8 @@ INTEGRATORS = ("glass_path", "path")
 #: Mitsuba samplers: ``ldsampler`` (low-discrepancy, Kollig & Keller's (0, 2)-sequence) halved the RMSE of
 #: ``independent`` at 16 spp at the same speed (measured here: 4.8 vs 9.1 grey levels on rw3).
 SAMPLERS = ("ldsampler", "independent", "multijitter", "stratified")
+#: Sample counts the ldsampler accepts (square powers of two, at least 4: it renders 1 as 4).
+LDSAMPLER_SPP = (4, 16, 64, 256, 1024, 4096)
 #: Denoisers applied to the tone-mapped 8-bit image: ``none``; ``nlmeans`` = OpenCV's
 #: ``fastNlMeansDenoisingColored`` with strength ``denoise_strength``; ``bilateral`` = OpenCV's bilateral filter.
 DENOISERS = ("none", "nlmeans", "bilateral")
@@ -55,8 +57,8 @@ class PbrSettings:
     rr_depth: int = 5
     integrator: str = "glass_path"
     sampler: str = "ldsampler"
-    denoise: str = "nlmeans"
-    denoise_strength: float = 3.0
+    denoise: str = "bilateral"
+    denoise_strength: float = 10.0
     render_scale: float = 1.0
     variant: str = "auto"
     threads: int = 0
@@ -74,6 +76,10 @@ class PbrSettings:
             raise UnknownNameError("capture.pbr.integrator", self.integrator, INTEGRATORS)
         if self.sampler not in SAMPLERS:
             raise UnknownNameError("capture.pbr.sampler", self.sampler, SAMPLERS)
+        if self.sampler == "ldsampler" and self.spp not in LDSAMPLER_SPP:
+            raise ConfigError(f"capture.pbr.spp={self.spp}: the ldsampler needs a square power of two "
+                              f"{LDSAMPLER_SPP} (Mitsuba would round it up silently); pick one or set "
+                              f"capture.pbr.sampler to one of {SAMPLERS[1:]}")
         if self.denoise not in DENOISERS:
             raise UnknownNameError("capture.pbr.denoise", self.denoise, DENOISERS)
         if not self.denoise_strength >= 0:
