@@ -28,7 +28,7 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 class SegUNet(nn.Module):
     """U-Net with ``channels`` per stage; forward (B, 3, H, W) normalised RGB -> (B, 2, H, W) logits."""
 
-    def __init__(self, channels: tuple[int, ...] = (16, 32, 48, 64, 96)) -> None:
+    def __init__(self, channels: tuple[int, ...] = (12, 24, 32, 48, 64)) -> None:
         super().__init__()
         self.channels = tuple(channels)
         self.down = nn.ModuleList()

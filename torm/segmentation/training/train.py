@@ -36,17 +36,17 @@ log = logging.getLogger(__name__)
 class TrainConfig:
     """Network and optimisation settings (pixels, steps)."""
 
-    channels: tuple[int, ...] = (16, 32, 48, 64, 96)
-    steps: int = 1500
+    channels: tuple[int, ...] = (12, 24, 32, 48, 64)
+    steps: int = 600
     batch_size: int = 8
-    crop: tuple[int, int] = (192, 256)  # (H, W) training window, multiples of 16
+    crop: tuple[int, int] = (160, 224)  # (H, W) training window, multiples of 16
     lr: float = 3e-3
     weight_decay: float = 1e-5
     boundary_radius_px: int = 2
     boundary_pos_weight: float = 3.0
     boundary_loss_weight: float = 1.0
     checkpoint_every: int = 100
-    val_every: int = 250
+    val_every: int = 100
     threads: int = 1
     seed: int = 0
 
