@@ -74,18 +74,33 @@ def render_mujoco(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray
 
 
 def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int, height: int,
-               rng: np.random.Generator, spp: int = 32) -> tuple[np.ndarray, np.ndarray]:
-    """Physically based RGB (``sim.render``) + the simulator's instance masks of the same cameras."""
+               rng: np.random.Generator, spp: int = 16, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Physically based RGB (``sim.render``'s Mitsuba renderer, its default settings but ``spp``; table texture and
+    lights randomised from the world's layout seed) + MuJoCo's instance masks of the same cameras (the masks the
+    pipeline's captures carry). No render cache: dataset shards are the cache."""
     try:
-        from sim.render import pbr_render_views  # type: ignore[attr-defined]
+        from sim.render import PbrSettings, RenderCamera, make_renderer
     except ImportError as exc:
         raise ConfigError("renderer 'pbr' needs the physically based renderer in sim/render (branch i10r); "
                           f"it is not available here ({exc}); use renderer 'mujoco'") from exc
-    return pbr_render_views(world, T_world_cam_vx4x4, K_vx3x3, width, height, seed=int(rng.integers(2**31)), spp=spp)
+    from sim.camera_rig import CameraRigConfig, SimCameraRig
+
+    del rng  # the PBR scene is randomised from world.seed by the renderer itself
+    cams = [RenderCamera(K, T, width, height) for T, K in zip(T_world_cam_vx4x4, K_vx3x3, strict=True)]
+    r = make_renderer("pbr", world, PbrSettings(spp=spp, cache=False, threads=threads))
+    try:
+        rgb = np.stack([v.rgb for v in r.render(cams, rgb=True, instance=False)])
+    finally:
+        r.close()
+    cfg = CameraRigConfig(n_views=len(cams), width=width, height=height, channels=("mask",))
+    with SimCameraRig.from_world(world, cfg) as rig:
+        masks = np.stack([rig.render_arrays(T, K, ("mask",))["mask"] for T, K in
+                          zip(T_world_cam_vx4x4, K_vx3x3, strict=True)])
+    return rgb, masks.astype(np.int32)
 
 
-def render_scene(renderer: str, world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int, height: int,
-                 rng: np.random.Generator, spp: int = 32) -> tuple[np.ndarray, np.ndarray]:
+def render_scene(renderer: str, world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int,
+                 height: int, rng: np.random.Generator, spp: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """Dispatch to :func:`render_mujoco` or :func:`render_pbr`."""
     if renderer == "mujoco":
         return render_mujoco(world, T_world_cam_vx4x4, K_vx3x3, width, height, rng)
