@@ -29,7 +29,7 @@ import numpy as np
 
 from torm.backend.protocol import ArmState, GripperState
 from torm.backend.safety import SafeArm, SafetyLimits
-from torm.errors import ConfigError, SceneError
+from torm.errors import ConfigError, SceneError, UnknownNameError
 from torm.execution.errors import PhysicsError
 from torm.types import TriMesh
 
@@ -348,6 +348,9 @@ class SimBackend:
         world: a built world with a robot (``build_world(..., robot="inovo_2f85")``).
         config: control, settling, gripper and safety settings.
         camera_config: optional ``sim.camera_rig.CameraRigConfig`` for :meth:`capture`.
+        renderer: who renders the capture's RGB images: ``mujoco`` (the rig's rasteriser) or ``pbr`` (Mitsuba 3
+            path tracing, ``sim.render``); depth and instance masks always come from MuJoCo.
+        render_settings: ``torm.capture.render_settings.PbrSettings`` for ``renderer="pbr"``.
 
     Attributes:
         arm: the simulated arm wrapped in :class:`SafeArm`; ``arm.inner`` is the raw :class:`SimArm`.
@@ -357,7 +360,8 @@ class SimBackend:
 
     name = "sim"
 
-    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None) -> None:
+    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None, *,
+                 renderer: str = "mujoco", render_settings: Any = None) -> None:
         if world.robot_config is None:
             raise SceneError("SimBackend needs a world with a robot; build it with "
                              "build_world(..., robot='inovo_2f85')")
@@ -372,6 +376,10 @@ class SimBackend:
         self.clock = SimClock(self._sim)
         self.ground_truth = SimGroundTruth(world)
         self._camera_config = camera_config
+        if renderer not in ("mujoco", "pbr"):
+            raise UnknownNameError("capture.renderer", renderer, ("mujoco", "pbr"))
+        self.renderer, self._render_settings = renderer, render_settings
+        self._rgb_renderer: Any = None
         self._rig = None
 
     @classmethod
@@ -398,30 +406,37 @@ class SimBackend:
         self._sim.reset_baseline()
         self.gripper.reset()
 
-    def capture(self, n_views: int | None = None) -> Capture:
-        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden)."""
+    def _get_rig(self) -> Any:
         if self._rig is None:
             from sim.camera_rig import SimCameraRig
 
-            self._rig = SimCameraRig.from_world(self.world, self._camera_config)
-        return self._rig.capture(n_views)
+            if self.renderer != "mujoco" and self._rgb_renderer is None:
+                from sim.render import make_renderer
+
+                self._rgb_renderer = make_renderer(self.renderer, self.world, self._render_settings)
+            self._rig = SimCameraRig.from_world(self.world, self._camera_config, rgb_renderer=self._rgb_renderer)
+        return self._rig
+
+    def capture(self, n_views: int | None = None) -> Capture:
+        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden); RGB from
+        :attr:`renderer`."""
+        return self._get_rig().capture(n_views)
 
     def occlusion_ratio(self, capture: Capture) -> float:
         """The paper's OCC of ``capture`` (taken by :meth:`capture` in the current state): share of views
         in which at least one object is partly hidden by another (0..1)."""
         from sim.occlusion import occlusion_ratio
 
-        if self._rig is None:
-            from sim.camera_rig import SimCameraRig
-
-            self._rig = SimCameraRig.from_world(self.world, self._camera_config)
-        return float(occlusion_ratio(self._rig, capture).ratio)
+        return float(occlusion_ratio(self._get_rig(), capture).ratio)
 
     def close(self) -> None:
-        """Free the camera rig's GL context."""
+        """Free the camera rig's GL context (and the RGB renderer)."""
         if self._rig is not None:
             self._rig.close()
             self._rig = None
+        if self._rgb_renderer is not None:
+            self._rgb_renderer.close()
+            self._rgb_renderer = None
 
 
 def safety_limits(rcfg: RobotConfig, config: SimBackendConfig | None = None) -> SafetyLimits:

@@ -4,6 +4,9 @@ The rig renders, per view, an RGB image, the ideal metric z-depth (first surface
 included), the *sensor* depth a real depth camera would report (the glass geom group 2 hidden, so
 it sees through glass) and a ground-truth instance mask (0 background, k = object k).
 
+RGB can come from another renderer (``rgb_renderer``: a :class:`sim.render.Renderer`, e.g. the physically based
+path tracer of ``capture.renderer: pbr``); depth, sensor depth and instance masks always come from MuJoCo.
+
 Conventions
 -----------
 - World frame = robot base frame, z up, metres. Poses are ``T_world_cam`` (4, 4) in **OpenCV**
@@ -295,6 +298,12 @@ class _Offscreen:
         return lut[seg]
 
 
+def _renderer_label(renderer: Any) -> str:
+    """Who rendered the RGB images, e.g. ``pbr mitsuba 3.9.1 llvm_ad_rgb spp 16 ...`` (capture metadata)."""
+    describe = getattr(renderer, "describe", None)
+    return describe() if callable(describe) else str(getattr(renderer, "name", type(renderer).__name__))
+
+
 def _make_option(groups: Iterable[int]) -> mujoco.MjvOption:
     opt = mujoco.MjvOption()
     opt.geomgroup[:] = 0
@@ -327,6 +336,8 @@ class SimCameraRig:
         config: the rig layout and intrinsics.
         object_ids, object_names: the scene's objects (instance ids and names), copied into captures.
         scenario, seed, table_height, workspace_bounds: metadata copied into captures.
+        rgb_renderer: a :class:`sim.render.Renderer` that renders the RGB images instead of MuJoCo (e.g. the
+            physically based ``sim.render.MitsubaRenderer``); depth and instance masks still come from MuJoCo.
 
     Use :meth:`from_world` with a ``sim.world.World`` (or any object with ``model``, ``data`` and
     ``geom_to_instance``). Call :meth:`close` (or use ``with``) to free the GL context.
@@ -345,8 +356,10 @@ class SimCameraRig:
         seed: int | None = None,
         table_height: float | None = None,
         workspace_bounds: np.ndarray | None = None,
+        rgb_renderer: Any = None,
     ) -> None:
         self.model, self.data = model, data
+        self.rgb_renderer = rgb_renderer
         self.config = config or CameraRigConfig()
         g2i = np.zeros(model.ngeom, np.int32) if geom_to_instance is None else np.asarray(geom_to_instance)
         if g2i.shape != (model.ngeom,):
@@ -373,7 +386,7 @@ class SimCameraRig:
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.config.reflections)
 
     @classmethod
-    def from_world(cls, world: Any, config: CameraRigConfig | None = None) -> SimCameraRig:
+    def from_world(cls, world: Any, config: CameraRigConfig | None = None, rgb_renderer: Any = None) -> SimCameraRig:
         """A rig for a ``sim.world.World`` (duck-typed: ``model``, ``data``, ``geom_to_instance``, ``objects``...)."""
         objects = list(_attr(world, "objects", default=[]) or [])
         ids = [int(_attr(o, "instance_id", "k", "id", default=i + 1)) for i, o in enumerate(objects)] or None
@@ -384,6 +397,7 @@ class SimCameraRig:
             world.model, world.data, _attr(world, "geom_to_instance"), config,
             object_ids=ids, object_names=names, scenario=scenario, seed=_attr(world, "seed"),
             table_height=_attr(world, "table_height"), workspace_bounds=_attr(world, "workspace_bounds"),
+            rgb_renderer=rgb_renderer,
         )
 
     # ----------------------------------------------------------------------------------- basics
@@ -450,7 +464,9 @@ class SimCameraRig:
         out: dict[str, np.ndarray] = {}
         if chans & {"rgb", "depth", "mask"}:
             self._update(self._opt_full, T, K)
-        if "rgb" in chans:
+        if "rgb" in chans and self.rgb_renderer is not None:
+            out["rgb"] = self._external_rgb(T, K)
+        elif "rgb" in chans:
             out["rgb"], _ = off.render(ids=False, want_rgb=True, want_depth=False)
         if "depth" in chans or "mask" in chans:
             ids_rgb, raw = off.render(ids=True, want_rgb="mask" in chans, want_depth="depth" in chans)
@@ -463,6 +479,12 @@ class SimCameraRig:
             _, raw = off.render(ids=True, want_rgb=False, want_depth=True)
             out["sensor_depth"] = off.linear_depth(raw)
         return out
+
+    def _external_rgb(self, T_world_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+        from sim.render.base import RenderCamera
+
+        cam = RenderCamera(K, T_world_cam, self._off.width, self._off.height)
+        return self.rgb_renderer.render([cam], rgb=True, instance=False)[0].rgb
 
     def render_view(
         self,
@@ -540,7 +562,8 @@ class SimCameraRig:
             it = tqdm(it, desc="capture", unit="view")
         views = [self.render_view(Ts[i], K, channels, name=f"view_{i:03d}") for i in it]
         meta = {
-            "renderer": f"mujoco {mujoco.__version__} offscreen",
+            "renderer": f"mujoco {mujoco.__version__} offscreen" if self.rgb_renderer is None
+            else _renderer_label(self.rgb_renderer),
             "camera_rig": {
                 "radius": self.config.radius, "centre": list(self.config.centre),
                 "target_height": self.config.target_height, "hfov_deg": self.config.hfov_deg,

@@ -21,6 +21,7 @@ from typing import Any, Literal
 import numpy as np
 
 from torm import __version__
+from torm.capture.render_settings import PbrSettings
 from torm.config import to_dict
 from torm.errors import ConfigError, ExecutionError, ReconstructionError, TormError, UnknownNameError
 from torm.execution.pick import PickConfig, execute_pick, free_directions
@@ -45,7 +46,7 @@ CHAMFER_SAMPLES = 20000
 
 
 #: Image renderers of the simulated capture (``capture.renderer``).
-RENDERERS = ("mujoco",)
+RENDERERS = ("mujoco", "pbr")
 #: Sensor-depth models of the simulated depth camera (``capture.depth_model``): ``ideal`` is exact
 #: z-depth of every opaque surface with glass invisible (the camera sees straight through it).
 DEPTH_MODELS = ("ideal",)
@@ -61,7 +62,10 @@ class CaptureSettings:
     Attributes:
         n_views: number of views.
         scale: image scale (0.5 -> 640x360).
-        renderer: who renders the RGB images (one of :data:`RENDERERS`).
+        renderer: who renders the RGB images (one of :data:`RENDERERS`): ``mujoco`` rasterises (glass as alpha
+            blending), ``pbr`` path-traces with Mitsuba 3 (refracting glass; ``sim.render``). Cameras, depth and
+            instance masks are the same for both.
+        pbr: settings of the ``pbr`` renderer (samples, bounces, denoiser, variant, cache).
         depth_model: how the sensor depth is simulated (one of :data:`DEPTH_MODELS`).
     """
 
@@ -69,6 +73,7 @@ class CaptureSettings:
     scale: float = 0.5
     renderer: str = "mujoco"
     depth_model: str = "ideal"
+    pbr: PbrSettings = field(default_factory=PbrSettings)
 
     def __post_init__(self) -> None:
         if self.n_views < 1 or not self.scale > 0:
@@ -200,7 +205,8 @@ def make_backend(config: TrialConfig) -> Any:
 
         world = build_world(config.scenario, config.seed, robot=config.robot)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
-        return SimBackend(world, camera_config=cam)
+        return SimBackend(world, camera_config=cam, renderer=config.capture.renderer,
+                          render_settings=config.capture.pbr)
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)

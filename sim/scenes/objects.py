@@ -31,6 +31,10 @@ from torm.errors import UnknownNameError
 
 GLASS_DENSITY = 2500.0  # kg/m^3 (soda-lime glass)
 CERAMIC_DENSITY = 2300.0  # kg/m^3 (porcelain/stoneware)
+#: Index of refraction of the glass objects (the issue's soda-lime value) and of borosilicate lab glassware
+#: (Schott DURAN / BOROFLOAT 33 datasheets: n_d = 1.47); used by the physically based renderer.
+GLASS_IOR = 1.5
+BOROSILICATE_IOR = 1.47
 
 Material = Literal["glass", "opaque"]
 Collision = Literal["sphere", "convex", "coacd"]
@@ -47,6 +51,7 @@ class ObjectAsset:
     density: float  # kg/m^3
     collision: Collision
     description: str = ""
+    ior: float = GLASS_IOR  # index of refraction when rendered as glass (physically based renderer)
 
     @property
     def transparent(self) -> bool:
@@ -133,6 +138,7 @@ class _Entry:
     density: float
     collision: Collision
     description: str
+    ior: float = GLASS_IOR
 
 
 _CUP_MESH = functools.partial(meshes.open_cup, radius=0.035, height=0.090, wall=0.003, bottom=0.006)
@@ -180,7 +186,7 @@ def get_object(name: str) -> ObjectAsset:
         raise UnknownNameError("object", name, _LIBRARY)
     e = _LIBRARY[name]
     return ObjectAsset(name=name, shape=e.shape, mesh=_shape_mesh(name).copy(), material=e.material,
-                       density=e.density, collision=e.collision, description=e.description)
+                       density=e.density, collision=e.collision, description=e.description, ior=e.ior)
 
 
 @functools.cache

@@ -1,0 +1,122 @@
+"""The physically based renderer: silhouettes equal the MuJoCo masks, glass refracts, the rig and trial use it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim.camera_rig import CameraRigConfig, SimCameraRig
+from sim.render import MitsubaRenderer, PbrSettings, RenderCamera, make_renderer
+from sim.render.mitsuba_renderer import render_linear, tone_map
+from sim.render.scene import describe_world, load_scene
+from sim.world import build_world
+from tests.render_helpers import camera, tiny_world
+
+FAST = PbrSettings(spp=4, max_depth=6, denoise="none", cache=False)
+
+
+@pytest.fixture(scope="module")
+def rw3():
+    return build_world("rw3", 0, robot=None)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def test_pbr_silhouettes_match_mujoco_instance_masks(rw3):
+    cfg = CameraRigConfig(n_views=3, width=160, height=90)
+    cams = [RenderCamera(cfg.K(), T, cfg.image_width, cfg.image_height) for T in cfg.poses()]
+    pbr = MitsubaRenderer(rw3, FAST)
+    mj = make_renderer("mujoco", rw3)
+    try:
+        for p, m in zip(pbr.render(cams, rgb=False), mj.render(cams, rgb=False), strict=True):
+            for o in rw3.objects:
+                a, b = p.instance == o.instance_id, m.instance == o.instance_id
+                assert b.sum() > 50
+                assert _iou(a, b) >= 0.98, (o.name, _iou(a, b))
+            assert set(np.unique(p.instance)) <= {0, *[o.instance_id for o in rw3.objects]}
+    finally:
+        mj.close()
+
+
+def test_robot_and_collision_geoms_are_not_rendered():
+    w = tiny_world()
+    names = {g.name for g in describe_world(w).geoms}
+    assert names == {"table", "obj1_box_visual", "obj2_ball_visual"}
+
+
+def test_glass_refracts_what_is_behind_it_while_the_masks_stay_exact():
+    w = tiny_world()
+    cam = camera(width=96, height=72)
+    r = MitsubaRenderer(w, dataclasses.replace(FAST, spp=16))
+    mi_scene, pbr = r.scene()
+    ids = r.render([cam], rgb=False)[0].instance
+    mj = make_renderer("mujoco", w)
+    try:
+        ref = mj.render([cam], rgb=False)[0].instance
+    finally:
+        mj.close()
+    for k in (1, 2):  # the glass silhouette is the MuJoCo mask (to the odd pixel whose centre sits on an edge)
+        assert _iou(ids == k, ref == k) >= 0.98 and (ids == k).sum() > 100
+    glass_key = next(k for k, v in pbr.shape_instances.items() if v == 1)
+    assert pbr.scene_dict[glass_key]["bsdf"]["int_ior"] == 1.5
+    with_glass = tone_map(render_linear(mi_scene, cam, r.settings, 7), exposure=1.0).astype(float)
+    # the same object with a null BSDF: light passes straight through, nothing bends
+    pbr.scene_dict[glass_key]["bsdf"] = {"type": "null"}
+    without = tone_map(render_linear(load_scene(pbr), cam, r.settings, 7), exposure=1.0).astype(float)
+    inside = ids == 1
+    far = ids == 0
+    far[20:, :] = False  # stay clear of shadows and caustics next to the objects (top band of the image)
+    diff_in = np.abs(with_glass - without)[inside].mean()
+    diff_far = np.abs(with_glass - without)[far].mean()
+    assert diff_in > 8.0 and diff_in > 4 * diff_far, (diff_in, diff_far)
+
+
+def test_ior_is_a_per_object_material_property():
+    w = tiny_world()
+    w.objects[0].ior = 1.47
+    r = MitsubaRenderer(w, FAST)
+    _, pbr = r.scene()
+    key = next(k for k, v in pbr.shape_instances.items() if v == 1)
+    assert pbr.scene_dict[key]["bsdf"]["int_ior"] == pytest.approx(1.47)
+    opaque = next(k for k, v in pbr.shape_instances.items() if v == 2)
+    assert pbr.scene_dict[opaque]["bsdf"]["type"] == "diffuse"
+
+
+def test_rig_takes_rgb_from_pbr_and_masks_from_mujoco(rw3):
+    cfg = CameraRigConfig(n_views=2, width=64, height=36)
+    with SimCameraRig.from_world(rw3, cfg) as plain:
+        ref = plain.capture()
+    pbr = MitsubaRenderer(rw3, FAST)
+    with SimCameraRig.from_world(rw3, cfg, rgb_renderer=pbr) as rig:
+        cap = rig.capture()
+    assert cap.metadata["renderer"].startswith("pbr mitsuba")
+    for a, b in zip(cap.views, ref.views, strict=True):
+        assert np.array_equal(a.mask, b.mask) and np.array_equal(a.depth, b.depth)
+        assert np.array_equal(a.K, b.K) and np.array_equal(a.T_world_cam, b.T_world_cam)
+        assert a.rgb.shape == b.rgb.shape and not np.array_equal(a.rgb, b.rgb)
+
+
+def test_trial_config_threads_the_renderer_to_the_backend(tmp_path, monkeypatch):
+    from torm import config
+    from torm.errors import UnknownNameError
+    from torm.pipeline import TrialConfig, make_backend
+
+    monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path))
+    cfg = config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=[
+        "capture.renderer=pbr", "capture.n_views=1", "capture.scale=0.05", "capture.pbr.spp=2",
+        "capture.pbr.denoise=none"])
+    assert cfg.capture.pbr.spp == 2
+    backend = make_backend(cfg)
+    try:
+        assert backend.renderer == "pbr"
+        cap = backend.capture(1)
+        assert cap.metadata["renderer"].startswith("pbr") and cap.views[0].rgb.shape == (36, 64, 3)
+        assert cap.views[0].mask.max() == 1
+    finally:
+        backend.close()
+    with pytest.raises(UnknownNameError, match="pbr"):
+        config.from_dict(TrialConfig, {}, overrides=["capture.renderer=cycles"])

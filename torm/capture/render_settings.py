@@ -1,0 +1,73 @@
+"""Settings of the physically based renderer (``capture.pbr``), a frozen config loadable through ``torm.config``.
+
+The renderer itself lives in ``sim.render`` (it needs the simulator's scene); the settings live here so a
+:class:`~torm.pipeline.TrialConfig` can hold them without importing the simulator. Every field is part of the
+render-cache key (see ``sim.render.cache``): change one and cached images are never reused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from torm.errors import ConfigError, UnknownNameError
+
+#: Mitsuba variants: ``auto`` = ``llvm_ad_rgb`` when a usable libLLVM (>= 16) is found, else ``scalar_rgb``
+#: with a warning; naming one forces it (``llvm_ad_rgb`` without libLLVM raises, naming the apt package).
+VARIANTS = ("auto", "llvm_ad_rgb", "scalar_rgb")
+#: Denoisers applied to the tone-mapped 8-bit image: ``none``; ``nlmeans`` = OpenCV's
+#: ``fastNlMeansDenoisingColored`` with strength ``denoise_strength``; ``bilateral`` = OpenCV's bilateral filter.
+DENOISERS = ("none", "nlmeans", "bilateral")
+
+
+@dataclass(frozen=True)
+class PbrSettings:
+    """Physically based (Mitsuba 3 path tracer) render settings.
+
+    Attributes:
+        spp: samples per pixel of the RGB pass (>= 1).
+        max_depth: longest light path in bounces (``path`` integrator; -1 = unbounded). Solid glass needs
+            at least 2 refractions plus the surface behind it; hollow glass 4 interfaces plus total internal
+            reflections: 8 keeps both.
+        rr_depth: path depth at which Russian roulette starts.
+        denoise: one of :data:`DENOISERS`.
+        denoise_strength: filter strength in 8-bit grey levels (``h`` of non-local means, sigma colour of the
+            bilateral filter).
+        render_scale: the RGB pass is traced at this fraction of each camera's size and resized (area / linear
+            interpolation) to it; 1.0 = native. Instance ids are always traced at the native size.
+        variant: one of :data:`VARIANTS`.
+        threads: render threads (0 = ``TORM_THREADS`` or the free cores).
+        exposure: ``0`` = auto exposure (the scene's log-average luminance maps to 0.18, Reinhard et al. 2002's
+            key value, like a camera's auto exposure); > 0 = a fixed linear gain.
+        cache: read and write the on-disk render cache (``TORM_CACHE_DIR``, default ``~/.cache/torm``).
+    """
+
+    spp: int = 16
+    max_depth: int = 8
+    rr_depth: int = 5
+    denoise: str = "nlmeans"
+    denoise_strength: float = 3.0
+    render_scale: float = 1.0
+    variant: str = "auto"
+    threads: int = 0
+    exposure: float = 0.0
+    cache: bool = True
+
+    def __post_init__(self) -> None:
+        if self.spp < 1:
+            raise ConfigError(f"capture.pbr.spp must be >= 1 sample per pixel, got {self.spp}")
+        if self.max_depth != -1 and self.max_depth < 1:
+            raise ConfigError(f"capture.pbr.max_depth must be >= 1 bounce (or -1 = unbounded), got {self.max_depth}")
+        if self.rr_depth < 1:
+            raise ConfigError(f"capture.pbr.rr_depth must be >= 1, got {self.rr_depth}")
+        if self.denoise not in DENOISERS:
+            raise UnknownNameError("capture.pbr.denoise", self.denoise, DENOISERS)
+        if not self.denoise_strength >= 0:
+            raise ConfigError(f"capture.pbr.denoise_strength must be >= 0 grey levels, got {self.denoise_strength}")
+        if not 0.05 <= self.render_scale <= 4.0:
+            raise ConfigError(f"capture.pbr.render_scale must be in [0.05, 4], got {self.render_scale}")
+        if self.variant not in VARIANTS:
+            raise UnknownNameError("capture.pbr.variant", self.variant, VARIANTS)
+        if self.threads < 0:
+            raise ConfigError(f"capture.pbr.threads must be >= 0 (0 = automatic), got {self.threads}")
+        if not self.exposure >= 0:
+            raise ConfigError(f"capture.pbr.exposure must be 0 (auto) or a positive gain, got {self.exposure}")
