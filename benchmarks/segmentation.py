@@ -14,14 +14,17 @@ Run: ``python benchmarks/segmentation.py [--quick] [--scenarios rw3 rw4 rw7 syn5
 ``--presets ... learned`` adds a row whose masks come from the learned segmenter reading the capture's RGB
 (the shipped U-Net; per-view ids without correspondence) instead of corrupted GT masks.
 
-``--learned`` instead measures the learned segmenter itself on the held-out rendered splits of its data
-recipe (``test_layouts``: seen shapes, unseen layouts; ``test_shapes``: scenes holding the held-out shapes),
+``--learned [--renderer mujoco|pbr]`` instead measures the learned segmenter itself on the held-out rendered
+splits of its data recipe (``test_layouts``: seen shapes, unseen layouts; ``test_shapes``: scenes holding the held-out shapes),
 12 full 640x360 views per scene on the capture rig's layout: object IoU per type, miss rate per view, false
 positives per view and the miss correlation between neighbouring views; writes
-``<out>/segmentation_learned.{json,md}`` and a figure of its masks on one render
-(``<out>/learned_seg_masks.png``). The splits are rendered on first use (resumable shards under
-``runs/seg_data/<renderer>``; ~5-20 min with the MuJoCo renderer on this box, longer with PBR); evaluation
-~2-5 min. Run: ``python benchmarks/segmentation.py --learned [--renderer pbr] [--model FILE]``.
+``<out>/segmentation_learned_<renderer>.{json,md}`` and a figure of its masks on one render
+(``<out>/learned_<renderer>_masks.png``). The test splits (the model card's recipe with that renderer, ``--spp``,
+optionally ``--test-shards`` shards of the first ``--test-scenes`` scenes) are rendered on first use (resumable shards under
+``runs/seg_data/<renderer>_test``): ~5 min with MuJoCo; with PBR ~7 s per 640x360 view at 16 spp on one
+core (96 views for ``--test-scenes 4``), far longer when the machine is shared; evaluation ~0.3 s per view.
+Run: ``python benchmarks/segmentation.py --learned [--renderer pbr --test-shards 1 --test-scenes 4]
+[--model FILE]``.
 """
 
 from __future__ import annotations
@@ -59,7 +62,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--learned", action="store_true", help="held-out evaluation of the learned segmenter (see above)")
     p.add_argument("--renderer", default="mujoco", choices=("mujoco", "pbr"), help="--learned: data renderer")
     p.add_argument("--model", default="", help="--learned: ONNX file (default: the shipped model)")
-    p.add_argument("--data", type=Path, default=None, help="--learned: shard folder (default runs/seg_data/<renderer>)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="--learned: shard folder (default runs/seg_data/<renderer>_test)")
+    p.add_argument("--spp", type=int, default=16, help="--learned, pbr: samples per pixel (16 = capture.pbr default)")
+    p.add_argument("--test-scenes", type=int, default=None,
+                   help="--learned: scenes per test shard (default: the model's recipe; the first N of its scenes)")
+    p.add_argument("--test-shards", type=int, default=None, help="--learned: shards per test split (default: recipe)")
     p.add_argument("--views", type=int, default=50)
     p.add_argument("--scale", type=float, default=0.5, help="image scale of 1280x720 (0.5 -> 640x360)")
     p.add_argument("--grid", type=int, default=48)
@@ -198,8 +206,8 @@ def build_report(doc: dict[str, Any], out: Path) -> None:
     log.info("wrote %s", out / "segmentation.md")
 
 
-def _learned_report(doc: dict[str, Any], out: Path) -> None:
-    """Markdown of the held-out evaluation (``segmentation_learned.md``)."""
+def _learned_report(doc: dict[str, Any], out: Path, tag: str) -> None:
+    """Markdown of the held-out evaluation (``segmentation_<tag>.md``)."""
     card = doc["model_card"]
     rows, trows = [], []
     for split, r in doc["splits"].items():
@@ -242,7 +250,7 @@ def _learned_report(doc: dict[str, Any], out: Path) -> None:
           bc.md_table(["split", "object", "shape", "n (view, object)", "IoU mean", "IoU median", "miss rate"], trows),
           f"\nSegmentation time: {bc.fmt(doc['seconds_per_view'], 3)} s per 640x360 view (onnxruntime, "
           f"{doc['context']['args']['threads']} thread(s)).\n"]
-    (out / "segmentation_learned.md").write_text("\n".join(md))
+    (out / f"segmentation_{tag}.md").write_text("\n".join(md))
 
 
 def _mask_figure(seg: Any, data: dict[str, Any], index: int, path: Path) -> None:
@@ -282,12 +290,20 @@ def run_learned(a: argparse.Namespace) -> int:
         raise SystemExit(f"{seg.config.model_path}: no model card (.json) beside it; train with torm train-segmenter")
     from torm.config import from_dict
 
-    recipe = from_dict(DataRecipe, dict(card["data"], renderer=a.renderer), where="model card data recipe")
-    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / a.renderer
+    over: dict[str, Any] = {"renderer": a.renderer}
+    if a.renderer == "pbr":
+        over["spp"] = a.spp
+    if a.test_shards:
+        over["shards"] = {"test_layouts": a.test_shards, "test_shapes": a.test_shards}
+    if a.test_scenes:
+        over["scenes_per_shard"] = a.test_scenes
+    recipe = from_dict(DataRecipe, dict(card["data"], **over), where="model card data recipe")
+    same = recipe.to_dict() == card["data"]  # the model's own recipe: its test splits sit beside its training data
+    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / (a.renderer if same else f"{a.renderer}_test")
     generate(recipe, data_dir, splits=("test_layouts", "test_shapes"))
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc: dict[str, Any] = {"context": bc.context(args), "segmenter": "learned", "model": seg.config.model_path.name,
-                           "renderer": a.renderer, "model_card": {k: card[k] for k in (
+                           "renderer": a.renderer, "test_recipe": recipe.to_dict(), "model_card": {k: card[k] for k in (
                                "parameters", "data", "train", "held_out_shapes", "dataset", "training")},
                            "splits": {}, "match_iou": 0.5, "min_visible_px": 100}
     t_total, n_total = 0.0, 0
@@ -306,10 +322,11 @@ def run_learned(a: argparse.Namespace) -> int:
                       "unseen_layouts_met": bool(lay is not None and lay >= 0.85), "unseen_shapes_iou": 0.75,
                       "unseen_shapes_measured": held, "unseen_shapes_met": bool(held is not None and held >= 0.75)}
     a.out.mkdir(parents=True, exist_ok=True)
-    bc.write_json(a.out / "segmentation_learned.json", json.loads(json.dumps(doc, default=str)))
-    _learned_report(doc, a.out)
-    _mask_figure(seg, load_split(data_dir, "test_shapes"), 6, a.out / "learned_seg_masks.png")
-    log.info("wrote %s", a.out / "segmentation_learned.md")
+    tag = f"learned_{a.renderer}"
+    bc.write_json(a.out / f"segmentation_{tag}.json", json.loads(json.dumps(doc, default=str)))
+    _learned_report(doc, a.out, tag)
+    _mask_figure(seg, load_split(data_dir, "test_shapes"), 6, a.out / f"{tag}_masks.png")
+    log.info("wrote %s", a.out / f"segmentation_{tag}.md")
     return 0
 
 
