@@ -15,16 +15,16 @@ Run: ``python benchmarks/segmentation.py [--quick] [--scenarios rw3 rw4 rw7 syn5
 (the shipped U-Net; per-view ids without correspondence) instead of corrupted GT masks.
 
 ``--learned [--renderer mujoco|pbr]`` instead measures the learned segmenter itself on the held-out rendered
-splits of its data recipe (``test_layouts``: seen shapes, unseen layouts; ``test_shapes``: scenes holding the held-out shapes),
-12 full 640x360 views per scene on the capture rig's layout: object IoU per type, miss rate per view, false
-positives per view and the miss correlation between neighbouring views; writes
+splits of its data recipe (``test_layouts``: seen shapes, unseen layouts; ``test_shapes``: scenes holding the
+held-out shapes), 12 full 640x360 views per scene on the capture rig's layout: object IoU per type, miss rate
+per view, false positives per view and the miss correlation between neighbouring views; writes
 ``<out>/segmentation_learned_<renderer>.{json,md}`` and a figure of its masks on one render
-(``<out>/learned_<renderer>_masks.png``). The test splits (the model card's recipe with that renderer, ``--spp``,
-optionally ``--test-shards`` shards of the first ``--test-scenes`` scenes) are rendered on first use (resumable shards under
-``runs/seg_data/<renderer>_test``): ~5 min with MuJoCo; with PBR ~7 s per 640x360 view at 16 spp on one
-core (96 views for ``--test-scenes 4``), far longer when the machine is shared; evaluation ~0.3 s per view.
-Run: ``python benchmarks/segmentation.py --learned [--renderer pbr --test-shards 1 --test-scenes 4]
-[--model FILE]``.
+(``<out>/learned_<renderer>_masks.png``). The test splits (the model card's recipe with that renderer,
+``--spp``, optionally ``--test-shards`` shards of the first ``--test-scenes`` scenes) are rendered on first use
+(resumable shards under ``runs/seg_data/<renderer>[_test]``): ~5 min with MuJoCo; with PBR ~7 s per 640x360
+view at 16 spp on one core (96 views for ``--test-scenes 4``), far longer when the machine is shared;
+evaluation ~0.3 s per view. Run: ``python benchmarks/segmentation.py --learned [--renderer pbr
+--test-shards 1 --test-scenes 4] [--model FILE]``.
 """
 
 from __future__ import annotations
