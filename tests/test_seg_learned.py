@@ -144,6 +144,12 @@ def test_one_training_step_exports_a_loadable_onnx(tmp_path):
     with pytest.raises(ConfigError, match="another training config"):
         train(TrainConfig(channels=(4, 8), steps=3, batch_size=2, crop=(32, 48)), rgb, masks, rgb, masks, tmp_path,
               progress=False)
+    # fine-tuning starts from the best weights; another network shape is refused
+    ft = TrainConfig(channels=(4, 8), steps=1, batch_size=2, crop=(32, 48), init_from=str(tmp_path / "best.pt"))
+    assert train(ft, rgb, masks, rgb, masks, tmp_path / "ft", progress=False)["steps"] == 1
+    with pytest.raises(ConfigError, match="init_from"):
+        train(TrainConfig(channels=(4, 16), steps=1, batch_size=2, crop=(32, 48), init_from=ft.init_from), rgb,
+              masks, rgb, masks, tmp_path / "ft2", progress=False)
     net = load_best(tmp_path, cfg)
     path = export_onnx(net, tmp_path / "tiny.onnx", (32, 48))
     onnx.checker.check_model(onnx.load(str(path)))

@@ -3,7 +3,8 @@
 Loss: foreground BCE + soft Dice, boundary-band BCE (positive weight ``boundary_pos_weight``). Augmentation
 per sample (seeded ``numpy.random.Generator``): horizontal flip, random ``crop`` window, brightness x
 U(0.7, 1.3), contrast x U(0.7, 1.3), per-channel gain x U(0.9, 1.1), Gaussian noise sigma U(0, 6) grey levels.
-Adam with a cosine learning-rate schedule over ``steps``. A checkpoint (model, optimiser, step, RNG state)
+AdamW with a cosine learning-rate schedule over ``steps``; ``init_from`` starts from an earlier run's weights
+(fine-tuning, e.g. MuJoCo-pretrained weights on PBR renders). A checkpoint (model, optimiser, step, RNG state)
 is written every ``checkpoint_every`` steps and at the end; a restarted run continues from it. The
 checkpoint with the best validation foreground IoU (split ``val``: seen shapes, unseen layouts; never the
 test splits) is the one exported.
@@ -49,6 +50,7 @@ class TrainConfig:
     val_every: int = 100
     threads: int = 1
     seed: int = 0
+    init_from: str = ""  # a best.pt / checkpoint.pt of the same channels to start from (fine-tuning); "" = random
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
@@ -167,6 +169,17 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         rng.bit_generator.state = saved["rng"]
         state = saved["state"]
         log.info("resumed from %s at step %d", ck, state["step"])
+    elif cfg.init_from:
+        init = Path(cfg.init_from).expanduser()
+        if not init.is_file():
+            raise ConfigError(f"train.init_from {init} does not exist; point it at a best.pt of an earlier run")
+        saved = torch.load(init, map_location="cpu", weights_only=False)
+        try:
+            net.load_state_dict(saved["model"])
+        except RuntimeError as exc:
+            raise ConfigError(f"train.init_from {init} holds another network ({exc}); train.channels must match"
+                              ) from exc
+        log.info("initialised from %s", init)
     tgt = targets(train_mask, cfg.boundary_radius_px)
     batcher = Batcher(train_rgb, tgt, cfg, rng)
 
