@@ -77,6 +77,13 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
                     "load_avg_end": list(os.getloadavg())},
         "produced_by": "torm train-segmenter",
     }
+    if spec.train.init_from:  # fine-tuned: record the run it started from (its card sits beside its best.pt)
+        import json
+
+        pre = Path(spec.train.init_from).expanduser().parent / "learned_seg.json"
+        pre_card = json.loads(pre.read_text()) if pre.is_file() else {}
+        card["pretrained"] = {"init_from": spec.train.init_from, **{k: pre_card.get(k) for k in (
+            "train", "data", "dataset", "training", "held_out_metrics")}}
     if evaluate_after:
         card["held_out_metrics"] = evaluate_model(out_path, data_dir, spec.train.threads)
     write_card(out_path.with_suffix(".json"), card)
