@@ -11,6 +11,7 @@ import dataclasses
 import logging
 import os
 import platform
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,6 +77,7 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "torch": torch.__version__,
                     "load_avg_end": list(os.getloadavg())},
         "produced_by": "torm train-segmenter",
+        "command": " ".join(sys.argv),
     }
     if spec.train.init_from:  # fine-tuned: record the run it started from (its card sits beside its best.pt)
         import json
