@@ -37,7 +37,8 @@ def test_shipped_model_segments_the_committed_render():
     assert DEFAULT_MODEL.is_file() and DEFAULT_MODEL.stat().st_size <= 20e6
     card = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
     assert {"train", "data", "held_out_shapes", "held_out_metrics"} <= set(card)
-    seg = make_segmenter("learned", {"threads": 1})
+    # a 320x192 window of a 640x360 PBR test view (same focal length): run at its native size
+    seg = make_segmenter("learned", {"threads": 1, "input_width": 0})
     res = seg.segment(Capture(views=(_view(rgb, gt),)))
     q = res.info["quality"]
     assert q["silhouette_iou_mean"] >= MIN_SHIPPED_IOU, q
@@ -129,7 +130,7 @@ def test_touching_discs_are_separated_by_the_boundary_output():
 
 
 def test_one_training_step_exports_a_loadable_onnx(tmp_path):
-    from torm.segmentation.training.train import TrainConfig, export_onnx, load_best, train
+    from torm.segmentation.training.train import TrainConfig, checkpoint_summary, export_onnx, load_best, train
 
     rng = np.random.default_rng(0)
     masks = np.stack([_discs(48, 64, r=10, gap=g) for g in (0, 4)]).astype(np.uint8)
@@ -141,6 +142,7 @@ def test_one_training_step_exports_a_loadable_onnx(tmp_path):
     assert np.isfinite(summary["history"][-1]["loss"])
     # resuming a finished run does no more steps; another config in the same folder is refused
     assert train(cfg, rgb, masks, rgb, masks, tmp_path, progress=False)["steps"] == 2
+    assert checkpoint_summary(tmp_path, cfg)["best_step"] in (1, 2)
     with pytest.raises(ConfigError, match="another training config"):
         train(TrainConfig(channels=(4, 8), steps=3, batch_size=2, crop=(32, 48)), rgb, masks, rgb, masks, tmp_path,
               progress=False)

@@ -18,7 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from torm.segmentation.training.dataset import DataRecipe, generate, load_split
-from torm.segmentation.training.train import TrainConfig, export_onnx, load_best, train, write_card
+from torm.segmentation.training.train import (
+    TrainConfig,
+    checkpoint_summary,
+    export_onnx,
+    load_best,
+    train,
+    write_card,
+)
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +57,12 @@ def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[st
 
 
 def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, progress: bool = True,
-        evaluate_after: bool = True) -> dict[str, Any]:
-    """All stages; returns the model card (also written to ``out_path.with_suffix('.json')``)."""
+        evaluate_after: bool = True, export_only: bool = False) -> dict[str, Any]:
+    """All stages; returns the model card (also written to ``out_path.with_suffix('.json')``).
+
+    ``export_only``: no further training steps; export the best checkpoint of ``work_dir`` as it stands (the card
+    then records ``steps`` < ``train.steps``; running again without it resumes the training).
+    """
     import torch
 
     from torm.segmentation.training.shapes import HELD_OUT_SHAPES
@@ -61,7 +72,10 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
     generate(spec.data, data_dir, progress=progress)
     t_data = time.perf_counter() - t0
     tr, va = load_split(data_dir, "train"), load_split(data_dir, "val")
-    summary = train(spec.train, tr["rgb"], tr["mask"], va["rgb"], va["mask"], work_dir, progress=progress)
+    if export_only:
+        summary = checkpoint_summary(work_dir, spec.train)
+    else:
+        summary = train(spec.train, tr["rgb"], tr["mask"], va["rgb"], va["mask"], work_dir, progress=progress)
     net = load_best(work_dir, spec.train)
     export_onnx(net, out_path)
     card: dict[str, Any] = {
@@ -73,7 +87,8 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
         "held_out_shapes": list(HELD_OUT_SHAPES),
         "dataset": {"train_views": int(len(tr["rgb"])), "val_views": int(len(va["rgb"])),
                     "train_scenes": len(tr["meta"]), "render_s_this_run": t_data},
-        "training": {k: v for k, v in summary.items() if k != "history"}, "history": summary["history"],
+        "training": {**{k: v for k, v in summary.items() if k != "history"},
+                     "complete": summary["steps"] >= spec.train.steps}, "history": summary["history"],
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "torch": torch.__version__,
                     "load_avg_end": list(os.getloadavg())},
         "produced_by": "torm train-segmenter",

@@ -224,6 +224,19 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
             "best_step": state["best_step"], "history": state["history"]}
 
 
+def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
+    """The :func:`train` summary of the run in ``workdir`` as far as its last checkpoint (no further steps)."""
+    ck = Path(workdir) / "checkpoint.pt"
+    if not ck.exists():
+        raise ConfigError(f"{ck} does not exist; train first")
+    saved = torch.load(ck, map_location="cpu", weights_only=False)
+    if saved.get("config") != cfg.to_dict():
+        raise ConfigError(f"{ck} was written with another training config")
+    st = saved["state"]
+    return {"steps": st["step"], "wall_s": st["wall_s"], "best_val_fg_iou": st["best_iou"],
+            "best_step": st["best_step"], "history": st["history"]}
+
+
 def load_best(workdir: Path, cfg: TrainConfig) -> SegUNet:
     """The best-validation network of a training run."""
     saved = torch.load(Path(workdir) / "best.pt", map_location="cpu", weights_only=False)
