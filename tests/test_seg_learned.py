@@ -20,8 +20,9 @@ from torm.segmentation.quality import mask_quality
 from torm.types import CameraView, Capture
 
 DATA = Path(__file__).parent / "data"
-#: the shipped model must reach this union-silhouette IoU on the committed held-out render (measured: see card)
-MIN_SHIPPED_IOU = 0.80
+#: the shipped model reaches union-silhouette IoU 0.838 on this committed PBR test view (a held-out test_layouts
+#: render, 320x192 window); the bound leaves room for onnxruntime differences across versions
+MIN_SHIPPED_IOU = 0.75
 
 
 def _view(rgb: np.ndarray, mask: np.ndarray | None = None) -> CameraView:
