@@ -298,7 +298,8 @@ def run_learned(a: argparse.Namespace) -> int:
     if a.test_scenes:
         over["scenes_per_shard"] = a.test_scenes
     recipe = from_dict(DataRecipe, dict(card["data"], **over), where="model card data recipe")
-    same = json.loads(json.dumps(recipe.to_dict())) == card["data"]  # the model's own recipe: its test splits sit beside its training data
+    # the model's own recipe: its test splits sit beside its training data
+    same = json.loads(json.dumps(recipe.to_dict())) == card["data"]
     data_dir = a.data or bc.ROOT / "runs" / "seg_data" / (a.renderer if same else f"{a.renderer}_test")
     generate(recipe, data_dir, splits=("test_layouts", "test_shapes"))
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
