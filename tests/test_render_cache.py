@@ -13,10 +13,12 @@ from sim.render import MitsubaRenderer, PbrSettings, RenderCache, cache_key, cac
 from sim.render.cache import NON_KEY_SETTINGS, canonical
 from tests.render_helpers import camera, tiny_world
 
-FAST = PbrSettings(spp=2, max_depth=4, denoise="none")
+FAST = PbrSettings(spp=4, max_depth=4, denoise="none")
 # a different valid value for every settings field
-CHANGED = {"spp": 3, "max_depth": 5, "rr_depth": 2, "denoise": "bilateral", "denoise_strength": 7.0,
-           "render_scale": 0.5, "variant": "scalar_rgb", "threads": 1, "exposure": 2.0, "cache": False}
+CHANGED = {"spp": 64, "max_depth": 5, "rr_depth": 2, "integrator": "path", "sampler": "independent",
+           "denoise": "bilateral",
+           "denoise_strength": 7.0, "render_scale": 0.5, "variant": "scalar_rgb", "threads": 1, "exposure": 2.0,
+           "cache": False}
 
 
 def test_every_pixel_shaping_setting_changes_the_key():
@@ -48,6 +50,11 @@ def test_object_poses_change_the_scene_digest():
     w.model.body_pos[1] += [0.001, 0, 0]  # the glass box moves 1 mm
     assert describe_world(w).digest() != d0
     assert describe_world(w, layout_seed=99).digest() != describe_world(w).digest()
+    # the appearance seed (table texture, lights) reaches the scene and so the key
+    from sim.render import MitsubaRenderer
+
+    a, b = MitsubaRenderer(w, FAST), MitsubaRenderer(w, FAST, appearance_seed=99)
+    assert a.scene()[1].lighting.params != b.scene()[1].lighting.params
 
 
 def test_mismatched_entry_is_refused_with_a_warning(tmp_path, caplog):
@@ -85,7 +92,7 @@ def test_renderer_hits_the_cache_and_refuses_a_tampered_entry(tmp_path, monkeypa
         r2.render(cams)
     assert r2.stats["rendered"] == 1 and r2.stats["cache_hits"] == 1
     # other settings render anew
-    r3 = MitsubaRenderer(w, dataclasses.replace(FAST, spp=3))
+    r3 = MitsubaRenderer(w, dataclasses.replace(FAST, spp=16))
     r3.render(cams[:1])
     assert r3.stats["rendered"] == 1
 
@@ -96,3 +103,11 @@ def test_canonical_form_hashes_arrays_and_refuses_unknown_objects():
     assert canonical({"a": big}) != canonical({"a": big + 1})
     with pytest.raises(TypeError):
         canonical({"a": object()})
+
+
+def test_ldsampler_sample_counts_are_validated():
+    from torm.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="square power of two"):
+        PbrSettings(spp=8)
+    assert PbrSettings(spp=8, sampler="independent").spp == 8

@@ -107,9 +107,9 @@ def test_trial_config_threads_the_renderer_to_the_backend(tmp_path, monkeypatch)
 
     monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path))
     cfg = config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=[
-        "capture.renderer=pbr", "capture.n_views=1", "capture.scale=0.05", "capture.pbr.spp=2",
+        "capture.renderer=pbr", "capture.n_views=1", "capture.scale=0.05", "capture.pbr.spp=4",
         "capture.pbr.denoise=none"])
-    assert cfg.capture.pbr.spp == 2
+    assert cfg.capture.pbr.spp == 4
     backend = make_backend(cfg)
     try:
         assert backend.renderer == "pbr"
@@ -120,3 +120,44 @@ def test_trial_config_threads_the_renderer_to_the_backend(tmp_path, monkeypatch)
         backend.close()
     with pytest.raises(UnknownNameError, match="pbr"):
         config.from_dict(TrialConfig, {}, overrides=["capture.renderer=cycles"])
+
+
+def test_extra_emitters_render_a_projected_dot_pattern_in_a_dark_room():
+    """The extension path of the IR stereo renders: a projector emitter added to the scene, room lights off."""
+    import mitsuba as mi
+
+    from sim.render import cv_to_mitsuba
+
+    w = tiny_world()
+    cam = camera(width=64, height=48)
+    r = MitsubaRenderer(w, dataclasses.replace(FAST, spp=4))
+    dots = (np.random.default_rng(0).random((64, 64)) > 0.9).astype(np.float32)
+    T_proj = cam.T_world_cam.copy()
+    T_proj[:3, 3] += cam.T_world_cam[:3, 0] * 0.05  # 5 cm to the camera's right
+    projector = {"type": "projector", "fov": 70.0, "scale": 20.0, "to_world": cv_to_mitsuba(T_proj),
+                 "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(np.repeat(dots[..., None], 3, axis=2)),
+                                "raw": True, "filter_type": "nearest"}}
+    dark = r.render([cam], env_scale=0.0, area_scale=0.0, exposure=1.0, rgb=True, instance=False)[0].rgb
+    lit = r.render([cam], extra_emitters={"projector": projector}, env_scale=0.0, area_scale=0.0, exposure=1.0,
+                   instance=False)[0].rgb
+    assert dark.max() == 0
+    grey = lit.astype(float).mean(axis=2)
+    assert grey.mean() > 2 and np.abs(np.diff(grey, axis=1)).mean() > 2  # bright, high-frequency dots
+    with pytest.raises(Exception, match="clashes"):
+        r.render([cam], extra_emitters={"env": projector})
+
+
+def test_capture_command_renders_pbr_rgb(tmp_path, capsys, monkeypatch):
+    import json
+
+    from torm.capture import load_capture
+    from torm.cli import main
+
+    monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "cap"
+    assert main(["capture", "--scenario", "rw1", "--views", "2", "--width", "64", "--height", "36", "--robot",
+                 "none", "--renderer", "pbr", "--spp", "4", "--no-occlusion", "--out", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["views"] == 2
+    cap = load_capture(out)
+    assert cap.metadata["renderer"].startswith("pbr mitsuba") and "spp 4" in cap.metadata["renderer"]
+    assert cap.views[0].rgb.shape == (36, 64, 3) and cap.masks().max() == 1

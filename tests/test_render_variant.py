@@ -37,7 +37,7 @@ SCALAR_SCRIPT = """
 import numpy as np
 from sim.render import MitsubaRenderer, PbrSettings
 from tests.render_helpers import camera, tiny_world
-r = MitsubaRenderer(tiny_world(), PbrSettings(spp=2, max_depth=4, denoise="none", variant="scalar_rgb", cache=False))
+r = MitsubaRenderer(tiny_world(), PbrSettings(spp=4, max_depth=4, denoise="none", variant="scalar_rgb", cache=False))
 v = r.render([camera(width=24, height=18)])[0]
 assert r.variant == "scalar_rgb", r.variant
 assert v.rgb.shape == (18, 24, 3) and v.rgb.dtype == np.uint8 and v.rgb.std() > 0

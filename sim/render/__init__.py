@@ -16,11 +16,13 @@ pass; only the RGB images come from the path tracer.
 
 Extending the PBR scene (e.g. an IR projector for active stereo)::
 
-    from sim.render import MitsubaRenderer, PbrSettings, RenderCamera
+    import mitsuba as mi
+    from sim.render import MitsubaRenderer, PbrSettings, RenderCamera, cv_to_mitsuba
 
     r = MitsubaRenderer(world, PbrSettings(spp=64, denoise="none"))
-    projector = {"type": "projector", "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(dots_hxw), "raw": True},
-                 "fov": 87.0, "scale": 50.0, "to_world": mi.ScalarTransform4f(T_mi.tolist())}
+    projector = {"type": "projector", "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(dots_hxwx3),
+                                                     "raw": True},
+                 "fov": 87.0, "scale": 50.0, "to_world": cv_to_mitsuba(T_world_projector)}  # OpenCV pose
     left, right = r.render([cam_left, cam_right], extra_emitters={"projector": projector},
                            env_scale=0.05, area_scale=0.0, exposure=1.0)
     ir = left.rgb.mean(axis=2)          # monochrome
@@ -28,7 +30,8 @@ Extending the PBR scene (e.g. an IR projector for active stereo)::
 Lower-level pieces: :func:`describe_world` (plain description of the rendered geoms; its digest keys the
 cache), :func:`build_scene_dict` (the Mitsuba dict: keys ``integrator``, ``env``, ``area_light_<i>``,
 ``table_top``, ``table_body``, ``geom_<name>``; edit it before ``mi.load_dict``), :func:`sensor_dict` (the
-OpenCV -> Mitsuba camera conversion), :func:`render_linear` (float32 linear radiance of one camera),
+OpenCV -> Mitsuba camera conversion; :func:`cv_to_mitsuba` for any other OpenCV-posed sensor or projector),
+:func:`render_linear` (float32 linear radiance of one camera),
 :func:`tone_map`, :func:`denoise`, :func:`instance_ids`, :func:`sample_lighting` / :data:`LIGHTING_RANGES`,
 :func:`table_texture`, :class:`RenderCache`. Transforms for Mitsuba: an OpenCV pose ``T`` becomes
 ``T @ diag(-1, -1, 1, 1)`` (see :mod:`sim.render.mitsuba_renderer`).
@@ -45,14 +48,15 @@ from sim.render.textures import TABLE_RANGES, table_texture
 from torm.capture.render_settings import PbrSettings
 
 __all__ = [
-    "LIGHTING_RANGES", "TABLE_RANGES", "Lighting", "MitsubaRenderer", "MujocoRenderer", "PbrSettings", "RenderCache",
-    "RenderCamera", "RenderError", "RenderedView", "Renderer", "build_scene_dict", "cache_key", "cache_root",
-    "denoise", "describe_world", "instance_ids", "make_renderer", "render_linear", "sample_lighting", "sensor_dict",
-    "table_texture", "tone_map",
+    "LIGHTING_RANGES", "Lighting", "MitsubaRenderer", "MujocoRenderer", "PbrSettings", "RenderCache", "RenderCamera",
+    "RenderError", "RenderedView", "Renderer", "TABLE_RANGES", "auto_exposure_gain", "build_scene_dict", "cache_key",
+    "cache_root", "cv_to_mitsuba", "denoise", "describe_world", "instance_ids", "make_renderer", "render_linear",
+    "sample_lighting", "sensor_dict", "table_texture", "tone_map",
 ]
 
 _LAZY = {
     "MitsubaRenderer": "sim.render.mitsuba_renderer", "render_linear": "sim.render.mitsuba_renderer",
+    "cv_to_mitsuba": "sim.render.mitsuba_renderer", "auto_exposure_gain": "sim.render.mitsuba_renderer",
     "sensor_dict": "sim.render.mitsuba_renderer", "tone_map": "sim.render.mitsuba_renderer",
     "denoise": "sim.render.mitsuba_renderer", "instance_ids": "sim.render.mitsuba_renderer",
     "MujocoRenderer": "sim.render.mujoco_renderer", "describe_world": "sim.render.scene",

@@ -241,11 +241,19 @@ def build_scene_dict(desc: SceneDescription, settings: Any, *, lighting: Lightin
     """
     from sim.render.mitsuba_env import load_mitsuba
 
-    mi, _ = load_mitsuba(settings.variant, settings.threads)
+    mi, variant = load_mitsuba(settings.variant, settings.threads)
     light = lighting if lighting is not None else sample_lighting(desc.layout_seed, desc.centre)
+    integrator = settings.integrator
+    if integrator == "glass_path":
+        if variant.startswith("scalar"):
+            integrator = "path"  # Python integrators need a JIT variant
+        else:
+            from sim.render.integrator import register
+
+            register()
     d: dict[str, Any] = {
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": int(settings.max_depth), "rr_depth": int(settings.rr_depth),
+        "integrator": {"type": integrator, "max_depth": int(settings.max_depth), "rr_depth": int(settings.rr_depth),
                        "hide_emitters": False},
     }
     if env_scale > 0:

@@ -3,6 +3,7 @@
 Example::
 
     torm capture --scenario rw3 --seed 0 --views 50 --width 640 --height 360 --out runs/rw3_s0 [--rrd rw3.rrd]
+    torm capture --scenario rw3 --scale 0.5 --renderer pbr --spp 16 --out runs/rw3_pbr   # path-traced RGB
 
 Prints a JSON summary (folder, image size, intrinsics, objects, occlusion ratio, timings) on stdout.
 The rig config (``sim.camera_rig.CameraRigConfig``) can be given as YAML with ``--config`` and
@@ -32,6 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-occlusion", action="store_true", help="skip computing the occlusion ratio")
     p.add_argument("--progress", action="store_true", help="show a progress bar on stderr")
     p.add_argument("--rrd", default=None, help="also write a rerun recording of the capture to this file")
+    p.add_argument("--renderer", choices=("mujoco", "pbr"), default="mujoco",
+                   help="who renders RGB: MuJoCo's rasteriser or the Mitsuba path tracer (depth and masks: MuJoCo)")
+    p.add_argument("--spp", type=int, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
     add_overrides(p)
     p.set_defaults(func=run)
 
@@ -55,7 +59,13 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     world = build_world(args.scenario, args.seed, robot=None if args.robot == "none" else args.robot)
     timings["build_world_s"] = time.perf_counter() - t0
-    with SimCameraRig.from_world(world, rig_cfg) as rig:
+    rgb_renderer = None
+    if args.renderer == "pbr":
+        from sim.render import make_renderer
+        from torm.capture.render_settings import PbrSettings
+
+        rgb_renderer = make_renderer("pbr", world, PbrSettings() if args.spp is None else PbrSettings(spp=args.spp))
+    with SimCameraRig.from_world(world, rig_cfg, rgb_renderer=rgb_renderer) as rig:
         t0 = time.perf_counter()
         cap = rig.capture(progress=args.progress)
         timings["render_s"] = time.perf_counter() - t0

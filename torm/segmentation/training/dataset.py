@@ -48,7 +48,7 @@ class DataRecipe:
     """How the dataset is generated (m, deg, px). Stored beside the shipped model as its data recipe."""
 
     renderer: str = "mujoco"
-    spp: int = 32
+    spp: int = 16
     full_width: int = 640
     full_height: int = 360
     hfov_deg: float = 91.5
