@@ -21,6 +21,11 @@ TORM and the oracle (``ideal`` depth model: they do not read depth), and per obj
 real GraspNet column (cylinder 3/10, opaque cup 8/10, prism 2/10, multi-object scenes failed). Order: the
 depth-model runs first (each writes the result files when it finishes), then TORM and the oracle. About 2 h
 of CPU on a quiet 2-core machine for 3 trials with ``ideal,statistical``; ``stereo`` adds ~1 min per trial.
+
+``--segmenter NAME`` adds a TORM column whose silhouettes come from that segmenter (e.g. ``learned``: the
+shipped U-Net reading the rendered RGB); ``--renderer NAME`` renders every capture of the run with that
+renderer (``capture.renderer``, e.g. ``pbr``). Both are named in the result file name
+(``grasping[_syn][_<renderer>][_seg-<segmenter>].json``) and in its config.
 """
 
 from __future__ import annotations
@@ -165,7 +170,8 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
 
 
 def write_markdown(result: dict[str, Any], path: Path) -> None:
-    order = ("depth", "depth_fusion", "oracle", "torm", "torm_noisy")
+    seg = result["config"].get("segmenter")
+    order = ("depth", "depth_fusion", "oracle", "torm", "torm_noisy", f"torm_{seg}")
     models = ("", "ideal", "statistical", "stereo")
 
     def rank(c: str) -> tuple[int, int, str]:
@@ -175,12 +181,15 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
     cols = sorted(result["totals"], key=rank)
     names = {c: column_name(c) for c in cols}
     names["torm_noisy"] = f"TORM (seg. errors: {result['config'].get('noisy_preset', 'paper')})"
+    names[f"torm_{seg}"] = f"TORM (segmenter {seg})"
     L = [f"# Grasping success in simulation, suite `{result['config']['suite']}` (shape of the paper's Table III)", "",
          f"{result['config']['trials']} trial(s) per scenario, scene layouts seeded per (suite, scenario, trial), "
          f"{result['config']['workers']} workers. Cells: objects picked / objects attempted (and trials in which "
          "every object was picked). A pick succeeds only when the simulated object is lifted 25 cm, moved 20 cm, "
-         "lowered and released on the table. OCC: share of views with an object partly hidden by another (measured "
-         f"on the capture). Date {result['date']}; load average before the run {result['loadavg_before']} "
+         "lowered and released on the table. Renderer: "
+         f"`{result['config'].get('renderer', 'mujoco')}`. OCC: share of views with an object partly hidden by "
+         "another (measured on the capture). "
+         f"Date {result['date']}; load average before the run {result['loadavg_before']} "
          f"(contended: **{str(result['contended']).lower()}**).", "",
          "| Scenario | OCC | Objects | " + " | ".join(names[c] for c in cols) + " | paper TORM (real robot) |",
          "|---|---|---|" + "---|" * len(cols) + "---|"]
@@ -231,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenario", action="append", default=[], help="subset of the suite (default all)")
     ap.add_argument("--noisy", action="store_true", help="add TORM with corrupted masks")
     ap.add_argument("--noisy-preset", default="paper", help="error-model preset of --noisy (default paper)")
+    ap.add_argument("--segmenter", default=None,
+                    help="add a TORM column with this segmenter's silhouettes (e.g. learned, grounded_sam)")
+    ap.add_argument("--renderer", default="mujoco", help="capture.renderer of every trial (default mujoco)")
     ap.add_argument("--fresh", action="store_true", help="start the run folders over instead of resuming")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--results-dir", default=str(RESULTS))
@@ -244,22 +256,30 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     base = dict(suite=args.suite, scenarios=tuple(args.scenario), trials=args.trials, workers=args.workers,
                 timeout_s=900.0)
-    suite_tag = "" if args.suite == "rw" else f"_{args.suite}"
+    suite_tag = ("" if args.suite == "rw" else f"_{args.suite}") + (
+        "" if args.renderer == "mujoco" else f"_{args.renderer}")
     runs = {"main": RUNS / f"bench_grasping{suite_tag}"}
     preset_tag = "" if args.noisy_preset == "paper" else f"_{args.noisy_preset}"
-    tag = suite_tag + (preset_tag if args.noisy else "")
+    tag = suite_tag + (preset_tag if args.noisy else "") + (f"_seg-{args.segmenter}" if args.segmenter else "")
+    if args.renderer != "mujoco":  # the default adds no override, so existing mujoco run folders still resume
+        args.overrides = [*args.overrides, f"capture.renderer={args.renderer}"]
     run_benchmark(BenchConfig(methods=("depth", "oracle", "torm"), overrides=tuple(args.overrides), **base),
                   runs["main"], fresh=args.fresh)
     if args.noisy:
         runs["torm_noisy"] = RUNS / f"bench_grasping{suite_tag}_noisy{preset_tag}"
         ov = (*args.overrides, "segmentation.segmenter=noisy", f"segmentation.preset={args.noisy_preset}")
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs["torm_noisy"], fresh=args.fresh)
+    if args.segmenter:
+        col = f"torm_{args.segmenter}"
+        runs[col] = RUNS / f"bench_grasping{suite_tag}_seg-{args.segmenter}"
+        ov = (*args.overrides, f"segmentation.segmenter={args.segmenter}")
+        run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs[col], fresh=args.fresh)
     result = summarise(runs)
     cores = os.cpu_count() or 1
     result.update({
         "config": {"suite": args.suite, "trials": args.trials, "workers": args.workers, "scenarios": args.scenario,
                    "overrides": args.overrides, "noisy": args.noisy,
-                   "noisy_preset": args.noisy_preset},
+                   "noisy_preset": args.noisy_preset, "segmenter": args.segmenter, "renderer": args.renderer},
         "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "wall_s": round(time.monotonic() - t0, 1),
         "loadavg_before": [round(x, 2) for x in load_before],

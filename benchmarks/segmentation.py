@@ -11,6 +11,20 @@ Writes ``<out>/segmentation.json`` (after every scene, so an interrupted run kee
 ``<out>/segmentation.md``.
 
 Run: ``python benchmarks/segmentation.py [--quick] [--scenarios rw3 rw4 rw7 syn5] [--presets ...]``.
+``--presets ... learned`` adds a row whose masks come from the learned segmenter reading the capture's RGB
+(the shipped U-Net; per-view ids without correspondence) instead of corrupted GT masks.
+
+``--learned [--renderer mujoco|pbr]`` instead measures the learned segmenter itself on the held-out rendered
+splits of its data recipe (``test_layouts``: seen shapes, unseen layouts; ``test_shapes``: scenes holding the
+held-out shapes), 12 full 640x360 views per scene on the capture rig's layout: object IoU per type, miss rate
+per view, false positives per view and the miss correlation between neighbouring views; writes
+``<out>/segmentation_learned_<renderer>.{json,md}`` and a figure of its masks on one render
+(``<out>/learned_<renderer>_masks.png``). The test splits (the model card's recipe with that renderer,
+``--spp``, optionally ``--test-shards`` shards of the first ``--test-scenes`` scenes) are rendered on first use
+(resumable shards under ``runs/seg_data/<renderer>[_test]``): ~5 min with MuJoCo; with PBR ~7 s per 640x360
+view at 16 spp on one core (96 views for ``--test-scenes 4``), far longer when the machine is shared;
+evaluation ~0.3 s per view. Run: ``python benchmarks/segmentation.py --learned [--renderer pbr
+--test-shards 1 --test-scenes 4] [--model FILE]``.
 """
 
 from __future__ import annotations
@@ -33,6 +47,8 @@ from torm.segmentation import make_segmenter  # noqa: E402
 log = logging.getLogger("bench.segmentation")
 
 PRESETS = ("none", "mild", "moderate", "severe", "paper")
+#: rows that run a segmenter on the capture's RGB instead of corrupting its GT masks
+SEGMENTER_ROWS = ("learned",)
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -42,7 +58,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--cache", type=Path, default=bc.CAPTURE_CACHE, help="capture cache folder")
     p.add_argument("--scenarios", nargs="+", default=None)
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
-    p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS)
+    p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS + SEGMENTER_ROWS)
+    p.add_argument("--learned", action="store_true", help="held-out evaluation of the learned segmenter (see above)")
+    p.add_argument("--renderer", default="mujoco", choices=("mujoco", "pbr"), help="--learned: data renderer")
+    p.add_argument("--model", default="", help="--learned: ONNX file (default: the shipped model)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="--learned: shard folder (default runs/seg_data/<renderer>_test)")
+    p.add_argument("--spp", type=int, default=16, help="--learned, pbr: samples per pixel (16 = capture.pbr default)")
+    p.add_argument("--test-scenes", type=int, default=None,
+                   help="--learned: scenes per test shard (default: the model's recipe; the first N of its scenes)")
+    p.add_argument("--test-shards", type=int, default=None, help="--learned: shards per test split (default: recipe)")
     p.add_argument("--views", type=int, default=50)
     p.add_argument("--scale", type=float, default=0.5, help="image scale of 1280x720 (0.5 -> 640x360)")
     p.add_argument("--grid", type=int, default=48)
@@ -62,7 +87,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def run_one(scene: bc.Scene, preset: str, a: argparse.Namespace) -> dict[str, Any]:
     """Corrupt the GT masks with ``preset``, reconstruct (fast mode) and score against the ground truth."""
-    seg = make_segmenter("noisy", {"preset": preset, "seed": scene.seed}).segment(scene.capture)
+    if preset in SEGMENTER_ROWS:
+        seg = make_segmenter(preset, {"threads": a.threads}).segment(scene.capture)
+    else:
+        seg = make_segmenter("noisy", {"preset": preset, "seed": scene.seed}).segment(scene.capture)
     q = seg.info["quality"]
     ev = seg.info.get("events", [])
     out: dict[str, Any] = {
@@ -123,7 +151,7 @@ def build_report(doc: dict[str, Any], out: Path) -> None:
         return float(np.mean(v)) if v else float("nan")
 
     summary = {}
-    for preset in [p for q in PRESETS for p in (q, q + " (union)")]:
+    for preset in [p for q in PRESETS + SEGMENTER_ROWS for p in (q, q + " (union)")]:
         rs = by_preset.get(preset)
         if not rs:
             continue
@@ -178,10 +206,137 @@ def build_report(doc: dict[str, Any], out: Path) -> None:
     log.info("wrote %s", out / "segmentation.md")
 
 
+def _learned_report(doc: dict[str, Any], out: Path, tag: str) -> None:
+    """Markdown of the held-out evaluation (``segmentation_<tag>.md``)."""
+    card = doc["model_card"]
+    rows, trows = [], []
+    for split, r in doc["splits"].items():
+        if "error" in r:
+            rows.append([split, r["error"][:80], *[None] * 9])
+            continue
+        c = r["miss_correlation_neighbour_views"]
+        rows.append([split, r["scenes"], r["views"], r["silhouette_iou_mean"], r["object"]["iou_mean"],
+                     r["held_out_objects"]["iou_mean"], r["miss_rate_per_view_mean"], r["views_with_a_miss"],
+                     r["false_positives_per_view"], c.get("phi"),
+                     f"{bc.fmt(c.get('p_miss_given_neighbour_missed'))} vs {bc.fmt(c.get('p_miss'))}"])
+        for t, st in r["per_type"].items():
+            trows.append([split, t, "held out" if t in card["held_out_shapes"] else "seen", st["n"], st["iou_mean"],
+                          st["iou_median"], st["miss_rate"]])
+    tgt = doc["targets"]
+    d = card["data"]
+    md = ["# Learned segmenter on held-out renders\n",
+          f"Generated by `benchmarks/segmentation.py --learned`. Segmenter `learned` (model `{doc['model']}`, "
+          f"{card['parameters']} parameters, trained on `{d['renderer']}` renders: "
+          f"{card['dataset']['train_views']} views of {card['dataset']['train_scenes']} scenes, "
+          f"{card['training']['steps']} steps, {card['training']['wall_s'] / 60:.0f} min on 1 thread). Test renderer "
+          f"`{doc['renderer']}`; full {d['full_width']}x{d['full_height']} frames, {d['test_views']} views per scene "
+          "on the capture rig's layout (radius 0.5 m, elevation 20-80 deg). Held-out shapes (never in training): "
+          f"{', '.join(card['held_out_shapes'])}. Object IoU: per (view, GT object with >= {doc['min_visible_px']} "
+          f"visible px), best IoU with any predicted instance; a miss is IoU < {doc['match_iou']}; a false positive "
+          f"is a predicted instance with IoU < {doc['match_iou']} against every GT object. Miss correlation: phi "
+          "coefficient of an object's miss indicators in a view and in its nearest view (by viewing direction), "
+          "and P(miss | neighbour missed) vs P(miss). Nothing was tuned on these splits (checkpoint chosen on "
+          "`val`).\n",
+          f"Targets: object IoU >= {tgt['unseen_layouts_iou']} on unseen layouts (`test_layouts`: "
+          f"{bc.fmt(tgt['unseen_layouts_measured'])}, **{'met' if tgt['unseen_layouts_met'] else 'not met'}**); "
+          f">= {tgt['unseen_shapes_iou']} on unseen shapes (held-out objects of `test_shapes`: "
+          f"{bc.fmt(tgt['unseen_shapes_measured'])}, **{'met' if tgt['unseen_shapes_met'] else 'not met'}**).\n",
+          "**Run context**\n", bc.context_md(doc["context"]),
+          "## Per split\n",
+          bc.md_table(["split", "scenes", "views", "silhouette IoU", "object IoU", "held-out object IoU",
+                       "miss rate / view", "views with a miss", "false pos. / view", "miss phi (neighbours)",
+                       "P(miss | nb missed) vs P(miss)"], rows),
+          "\n## Per object type\n",
+          bc.md_table(["split", "object", "shape", "n (view, object)", "IoU mean", "IoU median", "miss rate"], trows),
+          f"\nSegmentation time: {bc.fmt(doc['seconds_per_view'], 3)} s per 640x360 view (onnxruntime, "
+          f"{doc['context']['args']['threads']} thread(s)).\n"]
+    (out / f"segmentation_{tag}.md").write_text("\n".join(md))
+
+
+def _mask_figure(seg: Any, data: dict[str, Any], index: int, path: Path) -> None:
+    """RGB | predicted instances (colours) | GT for view ``index`` of a loaded split."""
+    import cv2
+
+    rgb = data["rgb"][index]
+    pred = seg.segment_image(rgb)[0]
+    gt = data["mask"][index].astype(np.int32)
+    pal = (np.random.default_rng(3).uniform(60, 255, (256, 3))).astype(np.uint8)
+    pal[0] = 0
+
+    def over(m: np.ndarray) -> np.ndarray:
+        o = rgb.copy()
+        o[m > 0] = (0.45 * rgb[m > 0] + 0.55 * pal[m[m > 0] % 256]).astype(np.uint8)
+        edge = cv2.morphologyEx((m > 0).astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+        o[edge] = 255
+        return o
+
+    img = np.concatenate([rgb, over(pred), over(gt)], axis=1)
+    for i, t in enumerate(("render", "learned segmenter", "simulator GT")):
+        cv2.putText(img, t, (i * rgb.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+
+
+def run_learned(a: argparse.Namespace) -> int:
+    """Held-out evaluation of the learned segmenter (``--learned``)."""
+    import json
+
+    from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
+    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
+    from torm.segmentation.training.evaluate import evaluate
+
+    seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads))
+    card = seg.card
+    if not card:
+        raise SystemExit(f"{seg.config.model_path}: no model card (.json) beside it; train with torm train-segmenter")
+    from torm.config import from_dict
+
+    over: dict[str, Any] = {"renderer": a.renderer}
+    if a.renderer == "pbr":
+        over["spp"] = a.spp
+    if a.test_shards:
+        over["shards"] = {"test_layouts": a.test_shards, "test_shapes": a.test_shards}
+    if a.test_scenes:
+        over["scenes_per_shard"] = a.test_scenes
+    recipe = from_dict(DataRecipe, dict(card["data"], **over), where="model card data recipe")
+    # the model's own recipe: its test splits sit beside its training data
+    same = json.loads(json.dumps(recipe.to_dict())) == card["data"]
+    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / (a.renderer if same else f"{a.renderer}_test")
+    generate(recipe, data_dir, splits=("test_layouts", "test_shapes"))
+    args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
+    doc: dict[str, Any] = {"context": bc.context(args), "segmenter": "learned", "model": seg.config.model_path.name,
+                           "renderer": a.renderer, "test_recipe": recipe.to_dict(), "model_card": {k: card[k] for k in (
+                               "parameters", "data", "train", "held_out_shapes", "dataset", "training")},
+                           "splits": {}, "match_iou": 0.5, "min_visible_px": 100}
+    t_total, n_total = 0.0, 0
+    for split in ("test_layouts", "test_shapes"):
+        data = load_split(data_dir, split)
+        t = time.perf_counter()
+        doc["splits"][split] = evaluate(lambda im: seg.segment_image(im)[0], data, tuple(card["held_out_shapes"]))
+        t_total += time.perf_counter() - t
+        n_total += len(data["rgb"])
+        log.info("%s: object IoU %.3f, held-out %s", split, doc["splits"][split]["object"]["iou_mean"],
+                 doc["splits"][split]["held_out_objects"]["iou_mean"])
+    doc["seconds_per_view"] = t_total / max(n_total, 1)
+    lay = doc["splits"]["test_layouts"]["object"]["iou_mean"]
+    held = doc["splits"]["test_shapes"]["held_out_objects"]["iou_mean"]
+    doc["targets"] = {"unseen_layouts_iou": 0.85, "unseen_layouts_measured": lay,
+                      "unseen_layouts_met": bool(lay is not None and lay >= 0.85), "unseen_shapes_iou": 0.75,
+                      "unseen_shapes_measured": held, "unseen_shapes_met": bool(held is not None and held >= 0.75)}
+    a.out.mkdir(parents=True, exist_ok=True)
+    tag = f"learned_{a.renderer}"
+    bc.write_json(a.out / f"segmentation_{tag}.json", json.loads(json.dumps(doc, default=str)))
+    _learned_report(doc, a.out, tag)
+    _mask_figure(seg, load_split(data_dir, "test_shapes"), 6, a.out / f"{tag}_masks.png")
+    log.info("wrote %s", a.out / f"segmentation_{tag}.md")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     bc.setup(a.threads)
+    if a.learned:
+        return run_learned(a)
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc: dict[str, Any] = {"context": bc.context(args), "chamfer_points": bc.CHAMFER_POINTS, "scenes": {}}
     for seed in a.seeds:

@@ -40,7 +40,7 @@ def test_bad_trial_configs_name_the_problem():
 
     with pytest.raises(ConfigError, match=r"'magic' is not one of \['torm', 'depth', 'depth_fusion', 'oracle'\]"):
         cfgmod.from_dict(TrialConfig, {}, ["method=magic"])
-    with pytest.raises(UnknownNameError, match="valid choices: grounded_sam, gt, noisy"):
+    with pytest.raises(UnknownNameError, match="valid choices: grounded_sam, gt, learned, noisy"):
         cfgmod.from_dict(TrialConfig, {}, ["segmentation.segmenter=sam3"])
     with pytest.raises(ConfigError, match="unknown key"):
         cfgmod.from_dict(TrialConfig, {}, ["reconstruction.grid_rez=3"])

@@ -111,9 +111,11 @@ class WorldSettings:
 
 @dataclass(frozen=True)
 class SegmentationSettings:
-    """Silhouette source: ``gt`` (simulator masks), ``noisy`` (error model preset) or ``grounded_sam``.
+    """Silhouette source: ``gt`` (simulator masks), ``noisy`` (error model preset), ``grounded_sam`` or
+    ``learned`` (the shipped U-Net; reads the rendered RGB).
 
-    ``options`` is passed to the segmenter's own config (e.g. ONNX paths for ``grounded_sam``).
+    ``options`` is passed to the segmenter's own config (e.g. ONNX paths for ``grounded_sam``, thresholds or
+    another model file for ``learned``).
     """
 
     segmenter: str = "gt"
@@ -121,7 +123,7 @@ class SegmentationSettings:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        valid = ("gt", "noisy", "grounded_sam")
+        valid = ("gt", "noisy", "grounded_sam", "learned")
         if self.segmenter not in valid:
             raise UnknownNameError("segmenter", self.segmenter, valid)
 

@@ -211,3 +211,24 @@ def build_hull_cache(write_repo_cache: bool = True) -> dict[str, int]:
         if e.collision == "coacd" and e.shape not in out:
             out[e.shape] = len(convex_decomposition(e.shape, _shape_mesh(name), write_repo_cache=write_repo_cache))
     return out
+
+
+def register_object(name: str, mesh: trimesh.Trimesh, material: Material = "glass", collision: Collision = "convex",
+                    description: str = "", density: float | None = None) -> None:
+    """Add a generated object (e.g. a procedural training shape) to the library under ``name``.
+
+    ``mesh`` must be a watertight volume in the object frame (run it through ``meshes.finalize``); density
+    defaults to glass / ceramic by ``material``. Re-registering a name with an identical mesh is a no-op;
+    a different mesh under an existing name raises ValueError (the mesh and hull caches are keyed by name).
+    Only ``"convex"`` and ``"sphere"`` collisions are allowed (CoACD hulls are cached for library shapes only).
+    """
+    if collision not in ("convex", "sphere"):
+        raise ValueError(f"register_object({name!r}): collision must be 'convex' or 'sphere', got {collision!r}")
+    if name in _LIBRARY:
+        old = _shape_mesh(name)
+        if old.vertices.shape == mesh.vertices.shape and np.allclose(old.vertices, mesh.vertices):
+            return
+        raise ValueError(f"object {name!r} is already in the library with a different mesh")
+    frozen = mesh.copy()
+    rho = density if density is not None else (GLASS_DENSITY if material == "glass" else CERAMIC_DENSITY)
+    _LIBRARY[name] = _Entry(name, lambda: frozen.copy(), material, rho, collision, description)

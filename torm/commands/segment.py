@@ -7,6 +7,7 @@ Examples::
     torm segment runs/rw3_s0 --segmenter grounded_sam --config models/grounded_sam.yaml \\
         --prompt "clear glass. transparent object." --out runs/rw3_s0_gsam
     torm segment runs/rw3_s0 --segmenter gt --check-views drop
+    torm segment runs/rw3_s0 --segmenter learned --set fg_threshold=0.5 --out runs/rw3_s0_learned
 
 The output folder (default ``CAPTURE_DIR_<segmenter>``) is a full capture (``transforms.json``, images,
 depth) whose ``masks/`` hold the predicted 16-bit instance masks. The input folder is never modified.
@@ -38,7 +39,8 @@ log = logging.getLogger(__name__)
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "segment", __doc__, help="extract per-view instance masks of a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
-    p.add_argument("--segmenter", default="grounded_sam", help="gt | noisy | grounded_sam (default grounded_sam)")
+    p.add_argument("--segmenter", default="grounded_sam",
+                   help="gt | noisy | grounded_sam | learned (default grounded_sam)")
     p.add_argument("--prompt", default=None, help="grounded_sam text prompt, phrases separated by '.'")
     p.add_argument("--preset", default=None, help="noisy: error preset (none, mild, moderate, severe, paper, ...)")
     p.add_argument("--seed", type=int, default=None, help="noisy: corruption seed")

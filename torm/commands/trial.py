@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=("torm", "depth", "depth_fusion", "oracle"), default=None,
                    help="perception: torm (reconstruction), depth (single-view depth, symmetric completion), "
                    "depth_fusion (TSDF fusion of every view's depth), oracle (true meshes)")
-    p.add_argument("--segmenter", choices=("gt", "noisy", "grounded_sam"), default=None,
+    p.add_argument("--segmenter", choices=("gt", "noisy", "grounded_sam", "learned"), default=None,
                    help="silhouette source for --method torm (default gt)")
     p.add_argument("--preset", default=None, help="error-model preset for --segmenter noisy (default paper)")
     p.add_argument("--views", type=int, default=None, help="number of views (default 50)")

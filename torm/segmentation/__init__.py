@@ -3,7 +3,8 @@
 Segmenters (``make_segmenter(name, config)``):
     ``gt``            the simulator's instance masks stored in the capture;
     ``noisy``         those masks corrupted by a seeded error model (presets none/mild/moderate/severe/paper);
-    ``grounded_sam``  Grounding DINO + SAM on onnxruntime from user-supplied ONNX files.
+    ``grounded_sam``  Grounding DINO + SAM on onnxruntime from user-supplied ONNX files;
+    ``learned``       the shipped U-Net (foreground + boundary) trained here on rendered scenes, onnxruntime.
 
 Each returns a :class:`SegmentationResult` ((V, H, W) int32 masks, detections, timings, quality vs GT
 when available); ``result.apply(capture)`` attaches the masks. :mod:`torm.segmentation.multiview` turns
@@ -22,8 +23,8 @@ from torm.segmentation.gt import GTConfig, GTSegmenter
 from torm.segmentation.noise import PRESETS, NoiseConfig, NoisyConfig, NoisySegmenter, corrupt_masks
 from torm.segmentation.quality import mask_quality
 
-#: registry name -> (config class, segmenter class); grounded_sam is imported lazily (onnxruntime).
-SEGMENTERS = ("gt", "noisy", "grounded_sam")
+#: registry names; grounded_sam and learned are imported lazily (onnxruntime).
+SEGMENTERS = ("gt", "noisy", "grounded_sam", "learned")
 
 
 def segmenter_config_class(name: str) -> type:
@@ -36,6 +37,10 @@ def segmenter_config_class(name: str) -> type:
         from torm.segmentation.grounded_sam import GroundedSAMConfig
 
         return GroundedSAMConfig
+    if name == "learned":
+        from torm.segmentation.learned import LearnedConfig
+
+        return LearnedConfig
     raise UnknownNameError("segmenter", name, SEGMENTERS)
 
 
@@ -43,7 +48,7 @@ def make_segmenter(name: str, config: Any = None) -> Segmenter:
     """Build segmenter ``name`` from its config dataclass, a mapping of its fields, or None (defaults).
 
     Raises UnknownNameError (listing the names) for an unknown segmenter, ConfigError for a bad config,
-    and ModelFileError when grounded_sam's model files are missing or do not match.
+    and ModelFileError when grounded_sam's or learned's model files are missing or do not match.
     """
     cls = segmenter_config_class(name)
     if config is None or isinstance(config, Mapping):
@@ -54,6 +59,10 @@ def make_segmenter(name: str, config: Any = None) -> Segmenter:
         return GTSegmenter(config)
     if name == "noisy":
         return NoisySegmenter(config)
+    if name == "learned":
+        from torm.segmentation.learned import LearnedSegmenter
+
+        return LearnedSegmenter(config)
     from torm.segmentation.grounded_sam import GroundedSAMSegmenter
 
     return GroundedSAMSegmenter(config)

@@ -1,0 +1,255 @@
+"""Randomised multi-object scenes with ground-truth instance masks, written as resumable shards.
+
+A :class:`DataRecipe` fixes everything: object pools, objects per scene, spacing, camera ranges, image size,
+renderer and seeds. Shard ``i`` of split ``s`` is a pure function of (recipe, s, i), so a killed generation
+resumes by skipping the shards already on disk (each is written to a temporary file and renamed).
+
+Scenes are physically placed: :func:`sim.world.build_world` samples a layout (``spacing`` moderate or dense),
+lets the objects settle and rejects layouts that tip, slide or interpenetrate. Object sets:
+
+``train`` / ``val``   per object, a library shape outside :data:`~.shapes.HELD_OUT_SHAPES` (``library_fraction``)
+                      or one of the procedural shapes; random camera poses on a band around the workspace
+                      (radius ``radius_range`` m, elevation ``elevation_deg`` above the table, azimuth uniform,
+                      look-at point jittered by ``target_jitter`` m) and ``views_per_scene`` views per scene,
+                      each rendered as a ``width`` x ``height`` window of the full 640x360 camera around the
+                      objects (:meth:`DataRecipe.crop_K`: objects keep the pipeline's pixel size);
+``test_layouts``      library shapes seen in training only, new layouts (seeds disjoint from train/val), the
+                      capture rig's own Fibonacci layout (``test_views`` full 640x360 views, radius 0.5 m, 20-80 deg);
+``test_shapes``       every scene holds at least one held-out shape (plus seen library shapes), same cameras.
+
+A shard (``<root>/<split>/shard_00000.npz``) holds ``rgb`` (N, H, W, 3) uint8, ``mask`` (N, H, W) uint8
+(0 background, k = object k), ``T_world_cam`` (N, 4, 4), ``K`` (N, 3, 3), ``scene`` (N,) index of the view's scene in
+``meta`` and ``meta`` (JSON: per scene the seed, object names, materials, spacing).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from torm.errors import ConfigError, SceneError
+from torm.geometry import look_at_cv
+
+log = logging.getLogger(__name__)
+
+SPLITS = ("train", "val", "test_layouts", "test_shapes")
+_SPLIT_SALT = {"train": 1, "val": 2, "test_layouts": 3, "test_shapes": 4}
+
+
+@dataclass(frozen=True)
+class DataRecipe:
+    """How the dataset is generated (m, deg, px). Stored beside the shipped model as its data recipe."""
+
+    renderer: str = "mujoco"
+    spp: int = 16
+    full_width: int = 640
+    full_height: int = 360
+    hfov_deg: float = 91.5
+    width: int = 320
+    height: int = 192
+    crop_jitter_px: float = 60.0
+    n_procedural: int = 60
+    procedural_seed: int = 0
+    library_fraction: float = 0.5
+    objects_per_scene: tuple[int, int] = (1, 6)
+    dense_fraction: float = 0.4
+    views_per_scene: int = 4
+    radius_range: tuple[float, float] = (0.38, 0.65)
+    elevation_deg: tuple[float, float] = (15.0, 80.0)
+    target_jitter: float = 0.06
+    scenes_per_shard: int = 8
+    shards: dict[str, int] = dataclasses.field(
+        default_factory=lambda: {"train": 60, "val": 4, "test_layouts": 3, "test_shapes": 3})
+    test_views: int = 12
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        from torm.segmentation.training.render import RENDERERS
+
+        if self.renderer not in RENDERERS:
+            raise ConfigError(f"data.renderer {self.renderer!r}; valid choices: {', '.join(RENDERERS)}")
+        lo, hi = self.objects_per_scene
+        if not 1 <= lo <= hi <= 10:
+            raise ConfigError("data.objects_per_scene must be (lo, hi) with 1 <= lo <= hi <= 10")
+        if (min(self.width, self.height) < 16 or self.width > self.full_width or self.height > self.full_height
+                or self.views_per_scene < 1 or self.test_views < 2):
+            raise ConfigError("data: need 16 px <= width <= full_width, 16 px <= height <= full_height, "
+                              "views_per_scene >= 1, test_views >= 2")
+        if not (0 <= self.library_fraction <= 1 and 0 <= self.dense_fraction <= 1):
+            raise ConfigError("data.library_fraction and data.dense_fraction must be in [0, 1]")
+        bad = sorted(set(self.shards) - set(SPLITS))
+        if bad:
+            raise ConfigError(f"data.shards: unknown split(s) {bad}; valid: {', '.join(SPLITS)}")
+
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsics of the full ``full_width`` x ``full_height`` camera (the rig's 91.5 deg HFOV)."""
+        f = 0.5 * self.full_width / np.tan(np.deg2rad(self.hfov_deg) / 2)
+        return np.array([[f, 0, self.full_width / 2], [0, f, self.full_height / 2], [0, 0, 1.0]])
+
+    def crop_K(self, T_world_cam: np.ndarray, points_world_nx3: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(3, 3) intrinsics of a ``width`` x ``height`` window of the full camera around the projected points.
+
+        The same focal length as the full camera with a shifted principal point: rendering it is exactly
+        cropping the full-resolution image (objects keep their pixel size) at a fraction of the cost. The
+        window centre is the points' mean projection plus N(0, ``crop_jitter_px``), kept inside the full frame.
+        """
+        K = self.K()
+        p = (np.asarray(points_world_nx3) - T_world_cam[:3, 3]) @ T_world_cam[:3, :3]
+        p = p[p[:, 2] > 1e-3]
+        uv = p[:, :2] / p[:, 2:3] * K[0, 0] + K[:2, 2] if len(p) else K[:2, 2][None]
+        c = uv.mean(axis=0) + rng.normal(0, self.crop_jitter_px, 2)
+        x0 = float(np.clip(round(c[0] - self.width / 2), 0, max(self.full_width - self.width, 0)))
+        y0 = float(np.clip(round(c[1] - self.height / 2), 0, max(self.full_height - self.height, 0)))
+        out = K.copy()
+        out[0, 2] -= x0
+        out[1, 2] -= y0
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def random_poses(n: int, recipe: DataRecipe, rng: np.random.Generator) -> np.ndarray:
+    """(n, 4, 4) OpenCV camera-to-world poses on the recipe's band, looking at the jittered workspace centre."""
+    out = np.empty((n, 4, 4))
+    centre = np.array([0.55, 0.0, 0.0])
+    for i in range(n):
+        r = rng.uniform(*recipe.radius_range)
+        el = np.deg2rad(rng.uniform(*recipe.elevation_deg))
+        az = rng.uniform(0, 2 * np.pi)
+        target = centre + np.array([*rng.normal(0, recipe.target_jitter, 2), rng.uniform(0.0, 0.05)])
+        eye = target + r * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        out[i] = look_at_cv(eye, target)
+    return out
+
+
+def rig_poses(n: int) -> np.ndarray:
+    """The capture rig's default Fibonacci layout (radius 0.5 m, 20-80 deg): neighbouring views are close."""
+    from sim.camera_rig import CameraRigConfig
+
+    return CameraRigConfig(n_views=n).poses()
+
+
+def _pools(recipe: DataRecipe) -> tuple[list[str], list[str], list[str]]:
+    from torm.segmentation.training.shapes import HELD_OUT_SHAPES, register_procedural, train_library_objects
+
+    proc = register_procedural(recipe.n_procedural, recipe.procedural_seed)
+    return list(train_library_objects()), proc, list(HELD_OUT_SHAPES)
+
+
+def sample_objects(split: str, recipe: DataRecipe, rng: np.random.Generator) -> tuple[str, ...]:
+    """Object names of one scene of ``split`` (see the module docstring)."""
+    lib, proc, held = _pools(recipe)
+    n = int(rng.integers(recipe.objects_per_scene[0], recipe.objects_per_scene[1] + 1))
+    if split in ("train", "val"):
+        return tuple(str(rng.choice(lib)) if rng.random() < recipe.library_fraction else str(rng.choice(proc))
+                     for _ in range(n))
+    if split == "test_layouts":
+        return tuple(str(rng.choice(lib)) for _ in range(n))
+    k = int(rng.integers(1, min(n, 3) + 1))
+    objs = [str(rng.choice(held)) for _ in range(k)] + [str(rng.choice(lib)) for _ in range(n - k)]
+    rng.shuffle(objs)
+    return tuple(objs)
+
+
+def scene_seed(recipe: DataRecipe, split: str, shard: int, j: int) -> int:
+    return int(recipe.seed * 10_000_000 + _SPLIT_SALT[split] * 1_000_000 + shard * 1000 + j)
+
+
+def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Path:
+    """Render shard ``shard`` of ``split`` into ``root`` unless it exists; returns its path."""
+    from sim.scenes.scenario import Scenario
+    from sim.world import build_world
+    from torm.segmentation.training.render import render_scene
+
+    path = Path(root) / split / f"shard_{shard:05d}.npz"
+    if path.exists():
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rgbs, masks, poses, Ks, scene_idx, meta = [], [], [], [], [], []
+    for j in range(recipe.scenes_per_shard):
+        seed = scene_seed(recipe, split, shard, j)
+        rng = np.random.default_rng(seed)
+        world = None
+        for _attempt in range(5):
+            objs = sample_objects(split, recipe, rng)
+            spacing = "dense" if rng.random() < recipe.dense_fraction else "moderate"
+            try:
+                world = build_world(Scenario(name=f"{split}_{shard}_{j}", objects=objs, spacing=spacing), seed,
+                                    robot=None)
+                break
+            except SceneError as exc:
+                log.info("scene %d/%d/%d rejected (%s); drawing another object set", shard, j, _attempt, exc)
+        if world is None:
+            continue
+        test = split.startswith("test")
+        if test:  # full frames of the rig layout
+            Ts = rig_poses(recipe.test_views)
+            K_v = np.repeat(recipe.K()[None], len(Ts), axis=0)
+            w, h = recipe.full_width, recipe.full_height
+        else:  # crops around the objects of random cameras
+            Ts = random_poses(recipe.views_per_scene, recipe, rng)
+            centres = np.array([world.object_pose(o.instance_id)[:3, 3] for o in world.objects])
+            K_v = np.stack([recipe.crop_K(T, centres, rng) for T in Ts])
+            w, h = recipe.width, recipe.height
+        rgb, mask = render_scene(recipe.renderer, world, Ts, K_v, w, h, rng, recipe.spp)
+        rgbs.append(rgb)
+        masks.append(mask.astype(np.uint8))
+        poses.append(Ts)
+        Ks.append(K_v)
+        scene_idx += [len(meta)] * len(Ts)
+        meta.append({"seed": seed, "objects": list(objs), "spacing": spacing,
+                     "materials": ["glass" if o.transparent else "opaque" for o in world.objects]})
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, rgb=np.concatenate(rgbs), mask=np.concatenate(masks), T_world_cam=np.concatenate(poses),
+                        K=np.concatenate(Ks), scene=np.asarray(scene_idx, np.int32),
+                        meta=np.asarray(json.dumps({"recipe": recipe.to_dict(), "scenes": meta})))
+    os.replace(tmp, path)
+    return path
+
+
+def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, progress: bool = True) -> list[Path]:
+    """Render every missing shard of ``splits`` (resumable; existing shards are kept)."""
+    from tqdm import tqdm
+
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    rec_path = root / "recipe.json"
+    doc = json.dumps(recipe.to_dict(), indent=2, sort_keys=True)
+    if rec_path.exists() and rec_path.read_text() != doc:
+        raise ConfigError(f"{root} holds shards of another data recipe ({rec_path}); use another folder or delete it")
+    rec_path.write_text(doc)
+    jobs = [(s, i) for s in splits for i in range(recipe.shards.get(s, 0))]
+    out = []
+    for s, i in tqdm(jobs, desc="render shards", unit="shard", disable=not progress):
+        out.append(generate_shard(recipe, s, i, root))
+    return out
+
+
+def load_split(root: Path, split: str) -> dict[str, Any]:
+    """All shards of ``split`` concatenated: rgb, mask, T_world_cam, scene (global index), meta list."""
+    files = sorted((Path(root) / split).glob("shard_*.npz"))
+    files = [f for f in files if not f.name.endswith(".tmp.npz")]
+    if not files:
+        raise ConfigError(f"no shards of split {split!r} under {root}; generate them first (torm train-segmenter)")
+    rgb, mask, T, Ks, scene, meta = [], [], [], [], [], []
+    offset = 0
+    for f in files:
+        z = np.load(f)
+        rgb.append(z["rgb"])
+        mask.append(z["mask"])
+        T.append(z["T_world_cam"])
+        Ks.append(z["K"])
+        m = json.loads(str(z["meta"]))["scenes"]
+        scene.append(z["scene"] + offset)
+        meta += [m[k] for k in range(len(m))]
+        offset += len(m)
+    return {"rgb": np.concatenate(rgb), "mask": np.concatenate(mask), "T_world_cam": np.concatenate(T),
+            "scene": np.concatenate(scene), "meta": meta, "K": np.concatenate(Ks)}

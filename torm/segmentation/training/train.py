@@ -1,0 +1,251 @@
+"""Training the learned segmenter on rendered shards: resumable, checkpointed, CPU; export to ONNX.
+
+Loss: foreground BCE + soft Dice, boundary-band BCE (positive weight ``boundary_pos_weight``). Augmentation
+per sample (seeded ``numpy.random.Generator``): horizontal flip, random ``crop`` window, brightness x
+U(0.7, 1.3), contrast x U(0.7, 1.3), per-channel gain x U(0.9, 1.1), Gaussian noise sigma U(0, 6) grey levels.
+AdamW with a cosine learning-rate schedule over ``steps``; ``init_from`` starts from an earlier run's weights
+(fine-tuning, e.g. MuJoCo-pretrained weights on PBR renders). A checkpoint (model, optimiser, step, RNG state)
+is written every ``checkpoint_every`` steps and at the end; a restarted run continues from it. The
+checkpoint with the best validation foreground IoU (split ``val``: seen shapes, unseen layouts; never the
+test splits) is the one exported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+
+from torm.errors import ConfigError
+from torm.segmentation.training.model import ExportWrapper, SegUNet, normalise
+from torm.segmentation.training.targets import targets
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Network and optimisation settings (pixels, steps)."""
+
+    channels: tuple[int, ...] = (12, 24, 32, 48, 64)
+    steps: int = 600
+    batch_size: int = 8
+    crop: tuple[int, int] = (160, 224)  # (H, W) training window, multiples of 16
+    lr: float = 3e-3
+    weight_decay: float = 1e-5
+    boundary_radius_px: int = 2
+    boundary_pos_weight: float = 3.0
+    boundary_loss_weight: float = 1.0
+    checkpoint_every: int = 100
+    val_every: int = 100
+    threads: int = 1
+    seed: int = 0
+    init_from: str = ""  # a best.pt / checkpoint.pt of the same channels to start from (fine-tuning); "" = random
+
+    def __post_init__(self) -> None:
+        if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
+            raise ConfigError("train: steps, batch_size, checkpoint_every and val_every must be >= 1")
+        stride = 2 ** (len(self.channels) - 1)
+        if len(self.crop) != 2 or any(c % stride or c <= 0 for c in self.crop):
+            raise ConfigError(f"train.crop {self.crop} must be (H, W) multiples of {stride}")
+        if not self.lr > 0 or self.threads < 1:
+            raise ConfigError("train: need lr > 0 and threads >= 1")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class Batcher:
+    """Random augmented batches (B, 3, h, w) float RGB 0..255 and (B, 2, h, w) float targets."""
+
+    def __init__(self, rgb_nxhxwx3: np.ndarray, tgt_nx2xhxw: np.ndarray, cfg: TrainConfig,
+                 rng: np.random.Generator) -> None:
+        self.rgb, self.tgt, self.cfg, self.rng = rgb_nxhxwx3, tgt_nx2xhxw, cfg, rng
+
+    def sample(self) -> tuple[torch.Tensor, torch.Tensor]:
+        c, r = self.cfg, self.rng
+        n, H, W = self.rgb.shape[:3]
+        ch, cw = min(c.crop[0], H - H % 16), min(c.crop[1], W - W % 16)
+        xs, ys = [], []
+        for i in r.integers(0, n, c.batch_size):
+            y0, x0 = int(r.integers(0, H - ch + 1)), int(r.integers(0, W - cw + 1))
+            img = self.rgb[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
+            t = self.tgt[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
+            if r.random() < 0.5:
+                img, t = img[:, ::-1], t[:, :, ::-1]
+            m = img.mean()
+            img = (img - m) * r.uniform(0.7, 1.3) + m * r.uniform(0.7, 1.3)
+            img = img * r.uniform(0.9, 1.1, 3) + r.normal(0, r.uniform(0, 6), img.shape)
+            xs.append(np.clip(img, 0, 255).astype(np.float32).transpose(2, 0, 1))
+            ys.append(t)
+        x, y = np.ascontiguousarray(np.stack(xs)), np.ascontiguousarray(np.stack(ys))
+        return torch.from_numpy(x), torch.from_numpy(y)
+
+
+def loss_fn(logits: torch.Tensor, tgt: torch.Tensor, cfg: TrainConfig) -> tuple[torch.Tensor, dict[str, float]]:
+    """Foreground BCE + soft Dice + weighted boundary BCE; returns the total and its parts."""
+    fg_l, b_l = logits[:, 0], logits[:, 1]
+    fg_t, b_t = tgt[:, 0], tgt[:, 1]
+    bce = F.binary_cross_entropy_with_logits(fg_l, fg_t)
+    p = torch.sigmoid(fg_l)
+    dice = 1 - (2 * (p * fg_t).sum() + 1) / (p.sum() + fg_t.sum() + 1)
+    bb = F.binary_cross_entropy_with_logits(b_l, b_t, pos_weight=torch.tensor(cfg.boundary_pos_weight))
+    total = bce + dice + cfg.boundary_loss_weight * bb
+    return total, {"fg_bce": bce.item(), "dice": dice.item(), "boundary_bce": bb.item()}
+
+
+@torch.no_grad()
+def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4) -> np.ndarray:
+    """(N, 2, H, W) float32 probabilities (edge-padded to multiples of the stride, cropped back)."""
+    net.eval()
+    n, H, W = rgb_nxhxwx3.shape[:3]
+    s = net.stride
+    ph, pw = -H % s, -W % s
+    out = np.empty((n, 2, H, W), np.float32)
+    for i in range(0, n, batch):
+        x = torch.from_numpy(rgb_nxhxwx3[i:i + batch].astype(np.float32)).permute(0, 3, 1, 2)
+        x = F.pad(x, (0, pw, 0, ph), mode="replicate")
+        out[i:i + batch] = torch.sigmoid(net(normalise(x)))[:, :, :H, :W].numpy()
+    return out
+
+
+def val_fg_iou(net: SegUNet, rgb: np.ndarray, mask: np.ndarray) -> float:
+    """Mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1)."""
+    p = predict(net, rgb)[:, 0] > 0.5
+    g = mask > 0
+    inter = (p & g).reshape(len(g), -1).sum(1)
+    union = (p | g).reshape(len(g), -1).sum(1)
+    return float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
+
+
+def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 320)) -> Path:
+    """Export ``net`` (eval mode) as ``image`` (1, 3, H, W) RGB 0..255 -> ``logits`` (1, 2, H, W), dynamic H, W."""
+    net.eval()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    wrapper = ExportWrapper(net).eval()
+    x = torch.rand(1, 3, *example_hw) * 255
+    with warnings.catch_warnings():  # the TorchScript exporter's deprecation notice; its output is checked in tests
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(wrapper, (x,), str(path), input_names=["image"], output_names=["logits"], opset_version=17,
+                          dynamic_axes={"image": {2: "height", 3: "width"}, "logits": {2: "height", 3: "width"}},
+                          dynamo=False)
+    return path
+
+
+def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_rgb: np.ndarray,
+          val_mask: np.ndarray, workdir: Path, progress: bool = True) -> dict[str, Any]:
+    """Train (resuming from ``workdir/checkpoint.pt``); the best-validation weights go to ``workdir/best.pt``.
+
+    Returns a summary: steps, wall time, best validation foreground IoU and its step, the loss history.
+    """
+    from tqdm import tqdm
+
+    torch.set_num_threads(cfg.threads)
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)  # weight init only; data order comes from the explicit Generator below
+    net = SegUNet(cfg.channels)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    rng = np.random.default_rng(cfg.seed)
+    state: dict[str, Any] = {"step": 0, "best_iou": -1.0, "best_step": 0, "history": [], "wall_s": 0.0}
+    ck = workdir / "checkpoint.pt"
+    if ck.exists():
+        saved = torch.load(ck, map_location="cpu", weights_only=False)
+        if saved.get("config") != cfg.to_dict():
+            raise ConfigError(f"{ck} was written with another training config; use another workdir or delete it")
+        net.load_state_dict(saved["model"])
+        opt.load_state_dict(saved["optimizer"])
+        rng.bit_generator.state = saved["rng"]
+        state = saved["state"]
+        log.info("resumed from %s at step %d", ck, state["step"])
+    elif cfg.init_from:
+        init = Path(cfg.init_from).expanduser()
+        if not init.is_file():
+            raise ConfigError(f"train.init_from {init} does not exist; point it at a best.pt of an earlier run")
+        saved = torch.load(init, map_location="cpu", weights_only=False)
+        try:
+            net.load_state_dict(saved["model"])
+        except RuntimeError as exc:
+            raise ConfigError(f"train.init_from {init} holds another network ({exc}); train.channels must match"
+                              ) from exc
+        log.info("initialised from %s", init)
+    tgt = targets(train_mask, cfg.boundary_radius_px)
+    batcher = Batcher(train_rgb, tgt, cfg, rng)
+
+    def save(path: Path) -> None:
+        tmp = path.with_suffix(".tmp")
+        torch.save({"config": cfg.to_dict(), "model": net.state_dict(), "optimizer": opt.state_dict(),
+                    "rng": rng.bit_generator.state, "state": state}, tmp)
+        tmp.replace(path)
+
+    bar = tqdm(total=cfg.steps, initial=state["step"], desc="train", unit="step", disable=not progress)
+    t_last = time.perf_counter()
+    running: list[float] = []
+    while state["step"] < cfg.steps:
+        net.train()
+        lr = cfg.lr * 0.5 * (1 + math.cos(math.pi * state["step"] / cfg.steps))
+        for g in opt.param_groups:
+            g["lr"] = lr
+        x, y = batcher.sample()
+        loss, parts = loss_fn(net(normalise(x)), y, cfg)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        state["step"] += 1
+        running.append(loss.item())
+        bar.update(1)
+        step = state["step"]
+        if step % cfg.val_every == 0 or step == cfg.steps:
+            iou = val_fg_iou(net, val_rgb, val_mask)
+            state["history"].append({"step": step, "loss": float(np.mean(running)), "val_fg_iou": iou, **parts})
+            running = []
+            log.info("step %d: loss %.4f, val fg IoU %.4f", step, state["history"][-1]["loss"], iou)
+            if iou > state["best_iou"]:
+                state["best_iou"], state["best_step"] = iou, step
+                torch.save({"config": cfg.to_dict(), "model": net.state_dict(), "step": step}, workdir / "best.pt")
+        now = time.perf_counter()
+        state["wall_s"] += now - t_last
+        t_last = now
+        if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+            save(ck)
+    bar.close()
+    return {"steps": state["step"], "wall_s": state["wall_s"], "best_val_fg_iou": state["best_iou"],
+            "best_step": state["best_step"], "history": state["history"]}
+
+
+def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
+    """The :func:`train` summary of the run in ``workdir`` as far as its last checkpoint (no further steps)."""
+    ck = Path(workdir) / "checkpoint.pt"
+    if not ck.exists():
+        raise ConfigError(f"{ck} does not exist; train first")
+    saved = torch.load(ck, map_location="cpu", weights_only=False)
+    if saved.get("config") != cfg.to_dict():
+        raise ConfigError(f"{ck} was written with another training config")
+    st = saved["state"]
+    return {"steps": st["step"], "wall_s": st["wall_s"], "best_val_fg_iou": st["best_iou"],
+            "best_step": st["best_step"], "history": st["history"]}
+
+
+def load_best(workdir: Path, cfg: TrainConfig) -> SegUNet:
+    """The best-validation network of a training run."""
+    saved = torch.load(Path(workdir) / "best.pt", map_location="cpu", weights_only=False)
+    net = SegUNet(cfg.channels)
+    net.load_state_dict(saved["model"])
+    return net.eval()
+
+
+def write_card(path: Path, card: dict[str, Any]) -> None:
+    """Write the model card JSON (training config, data recipe, metrics) beside the ONNX file."""
+    Path(path).write_text(json.dumps(card, indent=2, sort_keys=False, default=lambda o: o.tolist()
+                                     if hasattr(o, "tolist") else str(o)))
