@@ -17,7 +17,8 @@ from torm.cli import build_parser, main
 from torm.commands.config import config_class
 
 #: the config each command's --set applies to (torm config show NAME)
-SET_TARGET = {"trial": "trial", "bench": "trial", "capture": "capture", "reconstruct": "reconstruct"}
+SET_TARGET = {"trial": "trial", "bench": "trial", "capture": "capture", "reconstruct": "reconstruct",
+              "train-segmenter": "train-segmenter"}
 
 
 def _leaf_parsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):

@@ -33,6 +33,7 @@ CONFIGS: dict[str, tuple[str, str]] = {
     "reconstruct": ("torm.reconstruction.api:ReconstructionConfig", "torm reconstruct; trial key 'reconstruction'"),
     "capture": ("sim.camera_rig:CameraRigConfig", "torm capture (the simulated camera rig)"),
     "bench": ("torm.bench.spec:BenchConfig", "torm bench (its flags set these)"),
+    "train-segmenter": ("torm.segmentation.training.run:SegTrainingSpec", "torm train-segmenter (data + train)"),
     "hardware": ("torm.hardware.config:HardwareConfig", "--hardware-config of torm trial/bench --backend real"),
     "env:pick": ("torm.env.pick_env:PickEnvConfig", "gymnasium.make('torm/TormPick-v0', **options)"),
     "env:grasp_select": ("torm.env.grasp_select_env:GraspSelectEnvConfig",

@@ -1,15 +1,16 @@
 """``torm train-segmenter``: reproduce the learned segmenter (render data, train, export ONNX, evaluate).
 
-Examples::
+Examples (the shipped recipe into runs/seg_train/; PBR renders overwriting the shipped model; a tiny run)::
 
-    torm train-segmenter                                   # the shipped recipe, into runs/seg_train/
-    torm train-segmenter --renderer pbr --install          # PBR renders; overwrite the shipped model
+    torm train-segmenter
+    torm train-segmenter --renderer pbr --install
     torm train-segmenter --set train.steps=20 --set data.shards.train=1 --out /tmp/tiny.onnx
 
 Stages resume: rendered shards (``--data``, default ``runs/seg_data/<renderer>``) are kept, training continues
 from ``--work``'s checkpoint. Writes the ONNX file and its model card (same name, ``.json``: training config,
 data recipe, held-out shapes, time, held-out metrics). ``--config`` is YAML with ``data:`` and ``train:``
-sections (fields of ``DataRecipe`` / ``TrainConfig``); ``--set data.x=...`` / ``--set train.x=...`` override.
+sections (fields of ``DataRecipe`` / ``TrainConfig``); ``--set data.x=...`` / ``--set train.x=...`` override
+(``torm config show train-segmenter`` lists every key).
 Prints the model card's summary as JSON.
 """
 
@@ -19,14 +20,14 @@ import argparse
 import logging
 from pathlib import Path
 
-from torm.commands._common import add_overrides, print_json
+from torm.commands._common import add_overrides, add_parser, print_json
 
 log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("train-segmenter", help="render data, train, export and evaluate the learned segmenter",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_parser(subparsers, "train-segmenter", __doc__,
+                   help="render data, train, export and evaluate the learned segmenter")
     p.add_argument("--renderer", choices=("mujoco", "pbr"), default=None, help="dataset renderer (default: recipe's)")
     p.add_argument("--data", default=None, help="shard folder (default runs/seg_data/<renderer>)")
     p.add_argument("--work", default="runs/seg_train", help="training folder (checkpoints)")
@@ -36,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-eval", dest="evaluate", action="store_false", help="skip the held-out evaluation")
     p.add_argument("--export-only", action="store_true",
                    help="no more training steps: export the best checkpoint of --work as it stands (resume later)")
-    add_overrides(p)
+    add_overrides(p, example="train.steps=20", target="train-segmenter")
     p.set_defaults(func=run)
 
 
