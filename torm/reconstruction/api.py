@@ -50,7 +50,7 @@ from torm.reconstruction.carve import carve_visual_hull
 from torm.reconstruction.dmtet import DMTetConfig, downsample_masks, optimise_dmtet, silhouette_iou
 from torm.reconstruction.narrowband import narrow_band_hull
 from torm.reconstruction.objects import check_objects, consensus_objects, repair_masks, unexplained_views
-from torm.reconstruction.raster import render_mask
+from torm.reconstruction.raster import render_mask_fast
 from torm.reconstruction.tetgrid import build_tet_grid, cells_per_axis
 from torm.reconstruction.visual_hull import ProjectiveSDF, visual_hull_sdf
 from torm.runtime import configure_threads
@@ -67,8 +67,24 @@ MODES = ("fast", "paper", "carve")
 #: 15 % of the views is the tolerance RECONSTRUCTION.md measured to beat segmenter-like corrupted masks.
 VOTE_MIN_VIEWS = 12
 VOTE_FRACTION = 0.15
+#: Tolerated fraction of the views tried besides 0 in the narrow-band hull (rw4 with the noisy segmenter's
+#: "paper" masks, 50 views: 4 views gave Chamfer 2.13 mm, 8 views 2.60, strict 3.59; recon_vs_carve.md).
+FINE_VOTE_FRACTION = 0.08
 #: Input views (evenly spaced) on which the fit is evaluated and unexplained silhouette regions are looked for.
-EVAL_VIEWS = 16
+EVAL_VIEWS = 8
+#: The strict narrow-band hull is kept unless its projection misses a silhouette rim wider than this (px).
+RIM_TOL_PX = 1.5
+
+
+@dataclass
+class _EvalViews:
+    """Evenly spaced input views at ``mask_res``: indices, coverage masks (n, h, w), K, world-to-camera."""
+
+    index: np.ndarray
+    masks: np.ndarray
+    K: np.ndarray
+    T_cw: np.ndarray
+    renders: list = field(default_factory=list)  # renders of the selected mesh when already made (fast mode)
 #: Above this many distinct ids in one view a mask is probably not an instance map (a warning is logged).
 MAX_IDS_PER_VIEW = 48
 
@@ -89,7 +105,9 @@ class ReconstructionConfig:
             or more of the views that see it); None = :func:`auto_vote_views`.
         vote_tolerance: the same as a fraction of the views seeing a point (the earlier setting); when
             given it replaces ``vote_views``.
-        fine_vote_views: views that may disagree in the narrow-band hull of the repaired masks (0 = strict).
+        fine_vote_views: views that may disagree in the narrow-band hull of the repaired masks (0 = strict);
+            None = :func:`fine_vote_candidates`, evaluated in one pass, the one whose surface fits the input
+            silhouettes best is kept (strict on consistent masks, tolerant on eroded/dilated ones).
         repair_coverage: a view whose silhouette covers less than this fraction of a consensus object's
             projection is taken to have missed it (its mask is repaired for that object).
         skip_cut_views: a view in which an object is cut by the image border does not carve that object
@@ -123,14 +141,14 @@ class ReconstructionConfig:
     no_table: bool = False
     vote_views: int | None = None
     vote_tolerance: float | None = None
-    fine_vote_views: int = 0
+    fine_vote_views: int | None = None
     repair_coverage: float = 0.5
     skip_cut_views: bool = False
     band_base_res: int = 24
     band_levels: int | None = None
     cell_px: float = 1.5
     max_band_res: int = 384
-    band: float = 1.5
+    band: float = 0.4
     carve_res: int = 128
     hull_mask_res: int = 0
     refine_iters: int = 0
@@ -164,7 +182,7 @@ class ReconstructionConfig:
                 )
         if self.vote_tolerance is not None and not 0.0 <= self.vote_tolerance < 1.0:
             raise ConfigError(f"ReconstructionConfig.vote_tolerance must be in [0, 1), got {self.vote_tolerance}")
-        if (self.vote_views is not None and self.vote_views < 0) or self.fine_vote_views < 0:
+        if (self.vote_views is not None and self.vote_views < 0) or (self.fine_vote_views or 0) < 0:
             raise ConfigError("ReconstructionConfig: vote_views and fine_vote_views are view counts >= 0")
         if self.band_levels is not None and not 0 <= self.band_levels <= 6:
             raise ConfigError(f"ReconstructionConfig.band_levels must be in [0, 6] (or null), got {self.band_levels}")
@@ -202,6 +220,12 @@ def auto_vote_views(n_views: int) -> int:
     """Views that may disagree in the consensus hull: 0 below :data:`VOTE_MIN_VIEWS` views (every view must
     agree: with few views each one matters), else ``round(VOTE_FRACTION * n_views)``."""
     return 0 if n_views < VOTE_MIN_VIEWS else int(round(VOTE_FRACTION * n_views))
+
+
+def fine_vote_candidates(n_views: int) -> tuple[int, ...]:
+    """Tolerances (views) tried by the narrow-band hull: strict, and ``FINE_VOTE_FRACTION`` of the views
+    from :data:`VOTE_MIN_VIEWS` views on."""
+    return (0,) if n_views < VOTE_MIN_VIEWS else (0, max(1, int(round(FINE_VOTE_FRACTION * n_views))))
 
 
 def view_depths(Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, point_3: np.ndarray) -> np.ndarray:
@@ -348,17 +372,54 @@ def _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings) -> 
     return repaired, fine
 
 
-def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, info, timings) -> TriMesh:
+def rim_miss_px(mesh: TriMesh, ev: _EvalViews, full_width: int) -> tuple[float, list[np.ndarray]]:
+    """(Mean width (px of the full-resolution masks) of the silhouette rim the mesh's projection misses.
+
+    Per evaluation view: silhouette pixels the rendered mesh does not cover, divided by the silhouette's
+    boundary length (its pixels with a 4-neighbour outside), scaled to full resolution; mean over views.
+    Consistent silhouettes are each exactly the projection of their strict visual hull, so for them this
+    is a fraction of a pixel; eroded or dilated masks leave a rim of about their error. Also returns the
+    renders (h, w) bool of the evaluation views.
+    """
+    h, w = ev.masks.shape[1:]
+    out, renders = [], []
+    for i in range(len(ev.K)):
+        m = ev.masks[i] > 0.5
+        r = render_mask_fast(mesh.verts_vx3, mesh.faces_fx3, ev.K[i], ev.T_cw[i], h, w)
+        renders.append(r)
+        if not m.any():
+            continue
+        inner = m.copy()
+        inner[1:] &= m[:-1]
+        inner[:-1] &= m[1:]
+        inner[:, 1:] &= m[:, :-1]
+        inner[:, :-1] &= m[:, 1:]
+        out.append((m & ~r).sum() / max(int((m & ~inner).sum()), 1))
+    return (float(np.mean(out)) * full_width / w if out else 0.0), renders
+
+
+def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, ev, W_full, info, timings) -> TriMesh:
     levels = config.band_levels
     if levels is None:
         levels = auto_band_levels(bounds, Ks, poses, config.band_base_res, config.cell_px, config.max_band_res)
+    tols = (config.fine_vote_views,) if config.fine_vote_views is not None else fine_vote_candidates(len(Ks))
     t = time.perf_counter()
-    mesh, grid = narrow_band_hull(fine, bounds, config.band_base_res, levels, table_z=table_z, band=config.band)
+    meshes, grid = narrow_band_hull(fine, bounds, config.band_base_res, levels, table_z=table_z, band=config.band,
+                                    tolerances=tols)
     timings["narrow_band"] = time.perf_counter() - t - grid.stats["marching_tets_s"]
     timings["marching_tets"] = grid.stats["marching_tets_s"]
-    info.update(band_levels=levels, grid_cells=list(grid.res), grid_verts=grid.n_verts, band_cells=len(grid.cells_cx3),
-                cell_m=float(grid.cell_size.max()), band_stats=grid.stats)
-    return mesh
+    best = 0
+    if len(meshes) > 1:
+        t = time.perf_counter()
+        miss, strict_renders = rim_miss_px(meshes[0], ev, W_full)
+        # strict unless its projection misses a rim wider than RIM_TOL_PX: then the masks disagree (eroded/dilated)
+        best = 1 if miss > RIM_TOL_PX else 0
+        ev.renders = strict_renders if best == 0 else []
+        info["strict_rim_miss_px"] = miss
+        timings["select_tolerance"] = time.perf_counter() - t
+    info.update(band_levels=levels, fine_vote_views=tols[best], grid_cells=list(grid.res), grid_verts=grid.n_verts,
+                band_cells=len(grid.cells_cx3), cell_m=float(grid.cell_size.max()), band_stats=grid.stats)
+    return meshes[best]
 
 
 def _dense_grid_modes(sil, Ks, poses, bounds, table_z, vote, config, info, timings, history) -> TriMesh:
@@ -449,12 +510,15 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
              info["mode_label"], V, np.round(bounds, 3).tolist(), bounds_src,
              "no table" if table_z is None else f"table z = {table_z} m", vote, threads)
     history: dict[str, list[float]] = {}
+    idx = np.unique(np.linspace(0, V - 1, min(V, EVAL_VIEWS)).round().astype(np.int64))
+    sup, sup_K = downsample_masks(sil[idx], Ks[idx], config.mask_res)
+    ev = _EvalViews(idx, sup, sup_K, np.linalg.inv(poses[idx]))
     if config.mode == "carve":
         mesh = _carve(sil, Ks, poses, bounds, table_z, config, info, timings)
     else:
         repaired, fine = _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings)
         if config.mode == "fast" and config.refine_iters == 0:
-            mesh = _fast_band(fine, Ks, poses, bounds, table_z, config, info, timings)
+            mesh = _fast_band(fine, Ks, poses, bounds, table_z, config, ev, sil.shape[2], info, timings)
         else:
             mesh = _dense_grid_modes(repaired if config.mode == "fast" else sil, Ks, poses, bounds, table_z, vote,
                                      config, info, timings, history)
@@ -484,18 +548,19 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
                f"{config.min_component_volume} m^3)") + "; check masks/cameras")
 
     t = time.perf_counter()
-    ev = np.unique(np.linspace(0, V - 1, min(V, EVAL_VIEWS)).round().astype(np.int64))
-    sup_masks, sup_K = downsample_masks(sil[ev], Ks[ev], config.mask_res)
-    h, w = sup_masks.shape[1:]
-    T_cw = np.linalg.inv(poses[ev])
+    h, w = ev.masks.shape[1:]
     scene = _concat(objects)
-    renders = np.stack([render_mask(scene.verts_vx3, scene.faces_fx3, sup_K[i], T_cw[i], h, w) for i in range(len(ev))])
-    ious = [silhouette_iou(r, m) for r, m in zip(renders, sup_masks, strict=True)]
+    if ev.renders and not info["rejected_objects"] and not dropped:
+        renders = np.stack(ev.renders)  # the selected mesh was rendered already and every component was kept
+    else:
+        renders = np.stack([render_mask_fast(scene.verts_vx3, scene.faces_fx3, ev.K[i], ev.T_cw[i], h, w)
+                            for i in range(len(ev.K))])
+    ious = [silhouette_iou(r, m) for r, m in zip(renders, ev.masks, strict=True)]
     info["silhouette_iou_mean"] = float(np.mean(ious))
     info["silhouette_iou_min"] = float(np.min(ious))
-    info["silhouette_iou_views"] = f"{len(ev)} of the {V} input views (the fit, not a held-out score)"
-    unexplained = unexplained_views(sup_masks > 0.5, renders, max(9, int(2e-3 * h * w)))
-    info["unexplained_views"] = sorted(int(ev[i]) for i in unexplained)
+    info["silhouette_iou_views"] = f"{len(ev.K)} of the {V} input views (the fit, not a held-out score)"
+    unexplained = unexplained_views(ev.masks > 0.5, renders, max(9, int(2e-3 * h * w)))
+    info["unexplained_views"] = sorted(int(ev.index[i]) for i in unexplained)
     if unexplained:
         log.warning("in %d of %d views a silhouette region is covered by no reconstructed object (e.g. views %s): "
                     "an object other views' masks carved away (missed by the segmenter there?) or outside the box",
@@ -513,5 +578,6 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
                           timings=timings, history=history, info=info)
 
 
-__all__ = ["DEFAULT_BOUNDS", "MODES", "ReconstructionConfig", "auto_band_levels", "auto_vote_views", "mode_label",
+__all__ = ["DEFAULT_BOUNDS", "MODES", "ReconstructionConfig", "auto_band_levels", "auto_vote_views",
+           "fine_vote_candidates", "mode_label",
            "reconstruct", "resolve_bounds", "resolve_table", "validate_capture"]

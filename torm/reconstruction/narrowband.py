@@ -48,7 +48,7 @@ class BandGrid:
     Attributes:
         verts_vx3: (N, 3) float32 vertex positions (m, world frame).
         tets_tx4: (T, 4) int64 positively oriented tets (6 per cell).
-        sdf_v: (N,) float64 field values at the vertices (m, negative inside).
+        sdf_v: (N, C) float64 values of the C fields at the vertices (m, negative inside).
         cells_cx3: (C, 3) int64 lattice coordinates of the band cells.
         res: cells per axis of the finest lattice.
         bounds: (2, 3) box (m).
@@ -85,17 +85,19 @@ def _ckeys(cells: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 class _Store:
-    """Field values at lattice vertices, looked up by key (sorted arrays + searchsorted)."""
+    """Field values (N, C) at lattice vertices, looked up by key (sorted arrays + searchsorted)."""
 
     def __init__(self, keys: np.ndarray, vals: np.ndarray) -> None:
         o = np.argsort(keys)
         self.keys, self.vals = keys[o], vals[o]
 
     def get(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(values, found) for ``keys`` of any shape (values of missing keys are NaN)."""
-        pos = np.clip(np.searchsorted(self.keys, keys), 0, max(len(self.keys) - 1, 0))
-        found = self.keys[pos] == keys if len(self.keys) else np.zeros(keys.shape, bool)
-        return np.where(found, self.vals[pos] if len(self.keys) else np.nan, np.nan), found
+        """(values keys.shape + (C,), found keys.shape) for ``keys`` of any shape (missing keys: NaN)."""
+        if not len(self.keys):
+            return np.full(keys.shape + self.vals.shape[1:], np.nan), np.zeros(keys.shape, bool)
+        pos = np.clip(np.searchsorted(self.keys, keys), 0, len(self.keys) - 1)
+        found = self.keys[pos] == keys
+        return np.where(found[..., None], self.vals[pos], np.nan), found
 
     def add(self, keys: np.ndarray, vals: np.ndarray) -> None:
         if len(keys):
@@ -111,14 +113,15 @@ def build_band(
     base_res: int,
     levels: int,
     *,
-    band: float = 1.5,
+    band: float = 0.4,
     max_closure_iters: int = 64,
 ) -> BandGrid:
     """Evaluate ``sdf_fn`` coarse-to-fine in a narrow band around its zero set (see the module docstring).
 
     Args:
-        sdf_fn: maps (M, 3) float64 world points (m) to (M,) float64 signed values (m, negative inside).
-            It must be positive on the box boundary (e.g. intersected with the box shrunk by a margin).
+        sdf_fn: maps (M, 3) float64 world points (m) to (M,) or (M, C) float64 signed values (m, negative
+            inside): C fields at once, refined where any of them is near zero. Every field must be positive
+            on the box boundary (e.g. intersected with the box shrunk by a margin).
         bounds_2x3: the box (m).
         base_res: cells along the longest box axis at level 0.
         levels: number of 2x refinements (0 = a dense grid at ``base_res``, only sign-change cells kept).
@@ -142,16 +145,20 @@ def build_band(
     t = time.perf_counter()
     gi, gj, gk = np.meshgrid(*(np.arange(x + 1) for x in n), indexing="ij")
     ijk = np.stack([gi, gj, gk], axis=-1).reshape(-1, 3)
-    store = _Store(_vkeys(ijk, n), np.asarray(sdf_fn(positions(ijk, n)), dtype=np.float64))
+    def evaluate(pts: np.ndarray) -> np.ndarray:
+        v = np.asarray(sdf_fn(pts), dtype=np.float64)
+        return v.reshape(len(pts), -1)
+
+    store = _Store(_vkeys(ijk, n), evaluate(positions(ijk, n)))
     ci, cj, ck = np.meshgrid(*(np.arange(x) for x in n), indexing="ij")
     cells = np.stack([ci, cj, ck], axis=-1).reshape(-1, 3)
     evaluated = len(ijk)
     for level in range(levels + 1):
         cell = (b[1] - b[0]) / n
         vals, _ = store.get(_vkeys(cells[:, None, :] + CUBE_CORNERS_8x3[None], n))
-        neg = vals < 0
-        mixed = neg.any(1) & ~neg.all(1)
-        keep = mixed if level == levels else mixed | (np.abs(vals).min(1) < band * float(np.linalg.norm(cell)))
+        neg = vals < 0  # (C, 8, fields)
+        mixed = (neg.any(1) & ~neg.all(1)).any(-1)
+        keep = mixed if level == levels else mixed | (np.abs(vals).min((1, 2)) < band * float(np.linalg.norm(cell)))
         cells = cells[keep]
         stats["levels"].append({"res": n.tolist(), "cells": int(len(cells)), "evaluated": int(evaluated),
                                 "s": time.perf_counter() - t})
@@ -163,26 +170,28 @@ def build_band(
         keys = np.unique(_vkeys(cells[:, None, :] + CUBE_CORNERS_8x3[None], n))
         ijk = _decode(keys, n)
         even = np.all(ijk % 2 == 0, axis=1)
-        new_vals = np.empty(len(keys))
+        new_vals = np.empty((len(keys), store.vals.shape[1]))
         new_vals[even] = store.get(_vkeys(ijk[even] // 2, n_old))[0]
-        new_vals[~even] = sdf_fn(positions(ijk[~even], n))
+        new_vals[~even] = evaluate(positions(ijk[~even], n))
         evaluated = int((~even).sum())
         store = _Store(keys, new_vals)
     if len(cells) == 0:  # no surface: report the finest lattice anyway
         n = np.asarray(cells_per_axis(b, base_res), dtype=np.int64) << levels
-    # closure: a sign change across a face means the neighbour holds surface too
+    # closure: a sign change across a face means the neighbour holds surface too. Only the cells added last
+    # can have neighbours still missing (the set only grows), so each pass checks that frontier.
     t = time.perf_counter()
     added = 0
+    step = np.zeros((6, 3), dtype=np.int64)
+    step[np.arange(6), np.arange(6) // 2] = 2 * (np.arange(6) % 2) - 1
+    frontier = cells
     for _ in range(max_closure_iters):
-        if len(cells) == 0:
+        if len(frontier) == 0:
             break
-        vals, _ = store.get(_vkeys(cells[:, None, :] + CUBE_CORNERS_8x3[None], n))
-        fneg = (vals < 0)[:, _FACE_CORNERS_6x4]  # (C, 6, 4)
-        fmixed = fneg.any(-1) & ~fneg.all(-1)
+        vals, _ = store.get(_vkeys(frontier[:, None, :] + CUBE_CORNERS_8x3[None], n))
+        fneg = (vals < 0)[:, _FACE_CORNERS_6x4]  # (cells, 6, 4, fields)
+        fmixed = (fneg.any(2) & ~fneg.all(2)).any(-1)
         ci, fi = np.nonzero(fmixed)
-        step = np.zeros((6, 3), dtype=np.int64)
-        step[np.arange(6), np.arange(6) // 2] = 2 * (np.arange(6) % 2) - 1
-        nb = cells[ci] + step[fi]
+        nb = frontier[ci] + step[fi]
         nb = nb[np.all((nb >= 0) & (nb < n), axis=1)]
         have = np.sort(_ckeys(cells, n))
         nbk = np.unique(_ckeys(nb, n))
@@ -190,13 +199,13 @@ def build_band(
         nbk = nbk[have[pos] != nbk]
         if len(nbk) == 0:
             break
-        new_cells = np.stack([nbk // (n[1] * n[2]), (nbk // n[2]) % n[1], nbk % n[2]], axis=1)
-        ck = np.unique(_vkeys(new_cells[:, None, :] + CUBE_CORNERS_8x3[None], n))
+        frontier = np.stack([nbk // (n[1] * n[2]), (nbk // n[2]) % n[1], nbk % n[2]], axis=1)
+        ck = np.unique(_vkeys(frontier[:, None, :] + CUBE_CORNERS_8x3[None], n))
         _, found = store.get(ck)
         miss = ck[~found]
-        store.add(miss, np.asarray(sdf_fn(positions(_decode(miss, n), n)), dtype=np.float64))
-        cells = np.concatenate([cells, new_cells])
-        added += len(new_cells)
+        store.add(miss, evaluate(positions(_decode(miss, n), n)))
+        cells = np.concatenate([cells, frontier])
+        added += len(frontier)
     else:
         log.warning("narrow band: the closure did not converge in %d passes; the surface may be open",
                     max_closure_iters)
@@ -214,26 +223,32 @@ def build_band(
                     cell_size=cell, stats=stats)
 
 
-def hull_field(field: ProjectiveSDF, bounds_2x3: np.ndarray, margin: float, table_z: float | None
-               ) -> Callable[[np.ndarray], np.ndarray]:
+def hull_field(field: ProjectiveSDF, bounds_2x3: np.ndarray, margin: float, table_z: float | None,
+               tolerances: tuple[int, ...] | None = None) -> Callable[[np.ndarray], np.ndarray]:
     """The visual-hull SDF (m) as a function of points: ``field`` intersected with the table half-space
     (when ``table_z`` is given) and the box shrunk by ``margin`` (so the box boundary is outside); points no
-    view sees are outside (+ the box size)."""
+    view sees are outside (+ the box size). With ``tolerances`` (view counts, see
+    :meth:`ProjectiveSDF.values`) it returns one column per tolerance."""
     b = np.asarray(bounds_2x3, dtype=np.float64)
     unseen = float((b[1] - b[0]).max())
 
     def fn(points_mx3: np.ndarray) -> np.ndarray:
-        val, n_seen = field(points_mx3)
+        if tolerances is None:
+            val, n_seen = field(points_mx3)
+            val = val[:, None]
+        else:
+            val, n_seen = field.values(points_mx3, tolerances)
         val[n_seen == 0] = unseen
         if table_z is not None:
-            val = np.maximum(val, float(table_z) - points_mx3[:, 2])
-        return np.maximum(val, box_sdf(points_mx3, b) + margin)
+            val = np.maximum(val, float(table_z) - points_mx3[:, 2:3])
+        return np.maximum(val, (box_sdf(points_mx3, b) + margin)[:, None])
 
     return fn
 
 
 def narrow_band_hull(field: ProjectiveSDF, bounds_2x3: np.ndarray, base_res: int, levels: int, *,
-                     table_z: float | None = None, band: float = 1.5) -> tuple[TriMesh, BandGrid]:
+                     table_z: float | None = None, band: float = 0.4, tolerances: tuple[int, ...] | None = None
+                     ) -> tuple[list[TriMesh], BandGrid]:
     """The projective hull's surface extracted on a narrow-band tet grid (marching tets).
 
     Args:
@@ -241,19 +256,24 @@ def narrow_band_hull(field: ProjectiveSDF, bounds_2x3: np.ndarray, base_res: int
         bounds_2x3: the reconstruction box (m); its boundary is held outside by half a finest cell.
         base_res, levels, band: see :func:`build_band`.
         table_z: table height (m); nothing below it. None: no table.
+        tolerances: several vote tolerances (views) evaluated in the same pass, one mesh each; None = the
+            field's own tolerance.
 
     Returns:
-        (closed outward-wound mesh in metres, the band grid with ``stats``).
+        (closed outward-wound meshes in metres, one per tolerance, the band grid with ``stats``).
     """
     b = np.asarray(bounds_2x3, dtype=np.float64)
     n = np.asarray(cells_per_axis(b, base_res)) << levels
     margin = 0.5 * float(((b[1] - b[0]) / n).min())
-    grid = build_band(hull_field(field, b, margin, table_z), b, base_res, levels, band=band)
+    grid = build_band(hull_field(field, b, margin, table_z, tolerances), b, base_res, levels, band=band)
     t = time.perf_counter()
+    meshes = []
     with torch.no_grad():
-        mv, mf = marching_tets(grid.verts_vx3, grid.tets_tx4, torch.from_numpy(grid.sdf_v.astype(np.float32)))
+        for c in range(grid.sdf_v.shape[1]):
+            mv, mf = marching_tets(grid.verts_vx3, grid.tets_tx4, torch.from_numpy(grid.sdf_v[:, c].astype(np.float32)))
+            meshes.append(TriMesh(mv.numpy().astype(np.float64), mf.numpy()))
     grid.stats["marching_tets_s"] = time.perf_counter() - t
-    return TriMesh(mv.numpy().astype(np.float64), mf.numpy()), grid
+    return meshes, grid
 
 
 __all__ = ["BandGrid", "build_band", "hull_field", "narrow_band_hull"]

@@ -219,19 +219,33 @@ class ProjectiveSDF:
             out._views[v] = self._view(np.asarray(masks_vxhxw[v]), self._Ks[v], self._views[v][-1])
         return out
 
-    def __call__(self, points_nx3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(hull value (N,) float64 m, negative inside; views seeing each point (N,) int32). Unseen: +inf."""
+    def _top(self, points_nx3: np.ndarray, k_max: int) -> tuple[np.ndarray, np.ndarray]:
         pts = np.ascontiguousarray(points_nx3, dtype=np.float32).reshape(-1, 3)
-        N = len(pts)
-        top = np.full((N, self.k_max), -np.inf, dtype=np.float32)
-        n_seen = np.zeros(N, dtype=np.int32)
+        top = np.full((len(pts), k_max), -np.inf, dtype=np.float32)
+        n_seen = np.zeros(len(pts), dtype=np.int32)
         for R, t, fx, fy, cx, cy, sd, r0, c0, _ in self._views:
             _accumulate_view(pts, R, t, fx, fy, cx, cy, float(self.W), float(self.H), self.near, sd, r0, c0,
                              self.carve_outside, top, n_seen)
+        return top, n_seen
+
+    def __call__(self, points_nx3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(hull value (N,) float64 m, negative inside; views seeing each point (N,) int32). Unseen: +inf."""
+        top, n_seen = self._top(points_nx3, self.k_max)
         k_n = vote_index(n_seen, self.vote_tol, self.vote_views)
-        val = top[np.arange(N), np.minimum(k_n, self.k_max - 1)].astype(np.float64)
+        val = top[np.arange(len(top)), np.minimum(k_n, self.k_max - 1)].astype(np.float64)
         val[n_seen == 0] = np.inf
         return val, n_seen
+
+    def values(self, points_nx3: np.ndarray, tolerances: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Hull values (N, len(tolerances)) for several vote tolerances (``vote_views`` semantics of
+        :func:`vote_index`) from one projection pass, and the views seeing each point (N,)."""
+        k_max = 1 + min(max(tolerances), max(self.n_views - 1, 0) // 2)
+        top, n_seen = self._top(points_nx3, k_max)
+        rows = np.arange(len(top))
+        out = np.stack([top[rows, np.minimum(vote_index(n_seen, vote_views=t), k_max - 1)] for t in tolerances],
+                       axis=1).astype(np.float64)
+        out[n_seen == 0] = np.inf
+        return out, n_seen
 
 
 def visual_hull_sdf(
