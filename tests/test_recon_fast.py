@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from test_recon_visual_hull import BOX, CENTRE, RADIUS, _cameras, _sphere_masks
 
 from torm.metrics import chamfer_distance_mm
 from torm.reconstruction import ReconstructionConfig, reconstruct
@@ -15,10 +16,8 @@ from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.narrowband import build_band, narrow_band_hull
 from torm.reconstruction.raster import render_mask, render_mask_fast
 from torm.reconstruction.tetgrid import build_tet_grid
-from torm.reconstruction.visual_hull import ProjectiveSDF, vote_index, visual_hull_sdf
+from torm.reconstruction.visual_hull import ProjectiveSDF, visual_hull_sdf, vote_index
 from torm.types import CameraView, Capture, TriMesh
-
-from test_recon_visual_hull import BOX, CENTRE, RADIUS, _cameras, _sphere_masks
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +81,6 @@ def test_narrow_band_equals_the_dense_grid_and_closes_at_jumps():
         vd, fd = marching_tets(dense.verts_vx3, dense.tets_tx4,
                                torch.from_numpy(field(dense.verts_vx3.numpy().astype(np.float64)).astype(np.float32)))
     mb = trimesh.Trimesh(vb.numpy(), fb.numpy(), process=False)
-    md = trimesh.Trimesh(vd.numpy(), fd.numpy(), process=False)
     assert mb.is_watertight and len(fb) == len(fd)  # the same surface, from a fraction of the evaluations
     np.testing.assert_allclose(np.sort(vb.numpy(), axis=0), np.sort(vd.numpy(), axis=0), atol=1e-6)
     assert sum(lv["evaluated"] for lv in band.stats["levels"]) < 0.6 * dense.n_verts

@@ -35,7 +35,7 @@ RECORDED_CASES: dict[str, dict[str, Any]] = {
                        "z = 0, no table, soft greyscale masks, the box cut by the image border in 3 views",
         "objects": [("torus", (0.05, 0.018), (0.0, 0.0, 0.0)), ("box", (0.05, 0.04, 0.07), (0.0, 0.14, 0.02))],
         "n_views": 10, "hw": (240, 320), "fov_x_deg": 60.0, "radius": 0.42, "elevations_deg": (-25.0, 55.0),
-        "aim_offset": [(3, (0.0, -0.07, 0.0)), (6, (0.0, -0.07, 0.0)), (9, (0.0, -0.07, 0.0))], "alpha": False,
+        "aim_offset": [(3, (-0.08, -0.12, 0.0)), (6, (-0.08, -0.12, 0.0)), (9, (-0.08, -0.12, 0.0))], "alpha": False,
     },
     "glass10": {
         "description": "12 views (10 input + 2 held out) at 480x360, one capsule standing on z = 0 plus a "

@@ -83,7 +83,7 @@ def _evaluate(capture: Any, used: list[int], held: list[int], mesh: Any, referen
                               "note": "IoU on the views the reconstruction was fitted to (not a held-out score)"}
     if held:
         out["heldout"] = {**_silhouette_metrics([views[i] for i in held], mesh, H, W), "views": held,
-                          "note": "IoU on views left out of the reconstruction's input"}
+                          "note": "held-out views: IoU on views left out of the reconstruction's input"}
     if all(v.depth is not None and v.mask is not None for v in views):
         depth = np.stack([render_depth(mesh.verts_vx3, mesh.faces_fx3, v.K, v.T_cam_world, H, W) for v in views])
         out["depth"] = depth_metrics(depth, np.stack([v.depth for v in views]), np.stack([v.mask for v in views]))

@@ -115,7 +115,7 @@ class ReconstructionConfig:
         band_base_res: cells along the longest box axis of the narrow band's level 0.
         band_levels: 2x refinements of the band; None = :func:`auto_band_levels`.
         cell_px: auto levels: the finest cell projects to about this many pixels at the median view depth.
-        max_band_res: auto levels never exceed this many cells along the longest axis.
+        max_band_res, min_band_res: auto levels give at most / at least this many cells along the longest axis.
         band: cells within this many cell diagonals of the surface are refined.
         carve_res: voxels along the longest axis in ``"carve"`` mode.
         hull_mask_res: longest mask side (px) of the hulls; 0 = full resolution.
@@ -148,6 +148,7 @@ class ReconstructionConfig:
     band_levels: int | None = None
     cell_px: float = 1.5
     max_band_res: int = 384
+    min_band_res: int = 96
     band: float = 0.4
     carve_res: int = 128
     hull_mask_res: int = 0
@@ -171,9 +172,10 @@ class ReconstructionConfig:
             raise ConfigError(f"ReconstructionConfig.refine_loss={self.refine_loss!r}; valid choices: robust, init")
         if not 4 <= self.grid_res <= 256:
             raise ConfigError(f"ReconstructionConfig.grid_res must be in [4, 256] cells, got {self.grid_res}")
-        if not (4 <= self.band_base_res <= self.max_band_res <= 2048 and 2 <= self.carve_res <= 1024):
-            raise ConfigError("ReconstructionConfig: need 4 <= band_base_res <= max_band_res <= 2048 and "
-                              "carve_res in [2, 1024]")
+        if not (4 <= self.band_base_res <= self.max_band_res <= 2048 and 2 <= self.carve_res <= 1024
+                and self.min_band_res <= self.max_band_res):
+            raise ConfigError("ReconstructionConfig: need 4 <= band_base_res <= max_band_res <= 2048, "
+                              "min_band_res <= max_band_res and carve_res in [2, 1024]")
         if self.bounds is not None:
             b = np.asarray(self.bounds, dtype=np.float64)
             if b.shape != (2, 3) or not np.all(np.isfinite(b)) or not np.all(b[1] > b[0]):
@@ -235,9 +237,11 @@ def view_depths(Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, point_3: np
 
 
 def auto_band_levels(bounds_2x3: np.ndarray, Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, base_res: int,
-                     cell_px: float, max_res: int) -> int:
+                     cell_px: float, max_res: int, min_res: int = 96) -> int:
     """2x refinements so that the finest cell projects to about ``cell_px`` pixels at the median depth of the
-    box centre (never more than ``max_res`` cells along the longest axis)."""
+    box centre, with at least ``min_res`` and at most ``max_res`` cells along the longest axis (the sub-cell
+    accuracy of the projective SDF still pays below a pixel: 80 px masks, 16 views: input-view IoU 0.883 at
+    48 cells, 0.914 at 96, 0.920 at 192)."""
     b = np.asarray(bounds_2x3, dtype=np.float64)
     z = view_depths(Ks_vx3x3, T_world_cam_vx4x4, b.mean(0))
     z = z[z > 1e-3]
@@ -245,6 +249,7 @@ def auto_band_levels(bounds_2x3: np.ndarray, Ks_vx3x3: np.ndarray, T_world_cam_v
     base_cell = float((b[1] - b[0]).max()) / base_res
     target = cell_px * (float(np.median(z)) if len(z) else base_cell * f) / f
     lv = max(0, round(math.log2(max(base_cell / target, 1.0))))  # finest cell within sqrt(2) of the target
+    lv = max(lv, math.ceil(math.log2(max(min_res / base_res, 1.0))))
     return int(min(lv, max(0, math.floor(math.log2(max_res / base_res)))))
 
 
@@ -355,8 +360,11 @@ def _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings) -> 
     objs = consensus_objects(val, pts, tuple(int(x) for x in n), float(step.max()))
     timings["consensus"] = time.perf_counter() - t
     if not objs:
+        n_empty = int((~sil.reshape(len(sil), -1).any(axis=1)).sum())
+        hint = (f"{n_empty} view(s) have entirely empty masks and carve everything (ignore_empty_views=true leaves "
+                "them out); " if n_empty else "")
         raise ReconstructionError(
-            f"nothing reconstructed: the masks' silhouette cones do not meet inside the reconstruction box "
+            f"nothing reconstructed: {hint}the masks' silhouette cones do not meet inside the reconstruction box "
             f"{np.round(bounds, 4).tolist()} ({info['bounds_source']}) even with {vote} dissenting views allowed; "
             f"check the camera poses, or the box: {BOUNDS_HINT} (or leave it unset for automatic bounds)")
     t = time.perf_counter()
@@ -401,7 +409,8 @@ def rim_miss_px(mesh: TriMesh, ev: _EvalViews, full_width: int) -> tuple[float, 
 def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, ev, W_full, info, timings) -> TriMesh:
     levels = config.band_levels
     if levels is None:
-        levels = auto_band_levels(bounds, Ks, poses, config.band_base_res, config.cell_px, config.max_band_res)
+        levels = auto_band_levels(bounds, Ks, poses, config.band_base_res, config.cell_px, config.max_band_res,
+                                  config.min_band_res)
     tols = (config.fine_vote_views,) if config.fine_vote_views is not None else fine_vote_candidates(len(Ks))
     t = time.perf_counter()
     meshes, grid = narrow_band_hull(fine, bounds, config.band_base_res, levels, table_z=table_z, band=config.band,

@@ -88,6 +88,12 @@ def cone_box(silhouettes_vxhxw: np.ndarray, Ks_vx3x3: np.ndarray, T_world_cam_vx
             c = np.zeros(3)
             c[axis] = sign
             res = linprog(c, A_ub=A, b_ub=b, bounds=[(None, None)] * 3, method="highs")
+            if res.status == 2 and table_z is not None and cone_box(silhouettes_vxhxw, Ks_vx3x3, T_world_cam_vx4x4,
+                                                                     None)[1, 2] < table_z:
+                raise ReconstructionError(
+                    f"the table plane z = {table_z} m lies above everything the masks' silhouette cones allow; set "
+                    "the table height (table_height in transforms.json, ReconstructionConfig.table_z, --table-z) or "
+                    "no table (table_height: null, --no-table)")
             if res.status == 2:
                 raise ReconstructionError(
                     "cannot compute the reconstruction box: the masks' silhouette cones do not intersect (the "
