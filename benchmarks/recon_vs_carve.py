@@ -54,7 +54,7 @@ from torm.metrics import chamfer_distance_mm, volume_iou  # noqa: E402
 from torm.reconstruction import ReconstructionConfig, reconstruct  # noqa: E402
 from torm.reconstruction.api import mode_label  # noqa: E402
 from torm.reconstruction.carve import carve_visual_hull, occupancy_mesh, voxel_grid_shape  # noqa: E402
-from torm.reconstruction.raster import render_mask  # noqa: E402
+from torm.reconstruction.raster import render_mask_fast  # noqa: E402
 from torm.segmentation import make_segmenter  # noqa: E402
 from torm.types import Capture, TriMesh  # noqa: E402
 
@@ -65,12 +65,13 @@ FAST = "TORM-fast"
 #: Per-stage ablation of TORM-fast: (row name, config overrides). Built up from the previous default.
 ABLATION: list[tuple[str, dict[str, Any]]] = [
     ("previous default: hull 48 cells, 15 % vote, 100 DMTet steps", {"refine_iters": 100, "vote_tolerance": 0.15}),
-    ("hull 48 cells, 15 % vote (no refinement)", {"band_levels": 1, "fine_vote_views": 6}),
-    ("+ strict after mask repair: 48 cells", {"band_levels": 1}),
-    ("+ narrow band: 96 cells", {"band_levels": 2}),
-    ("+ narrow band: 192 cells", {"band_levels": 3}),
-    ("+ narrow band: 384 cells", {"band_levels": 4}),
+    ("hull 48 cells, 15 % vote (no refinement)", {"band_levels": 1, "fine_vote_views": "15%"}),
+    ("+ strict after mask repair: 48 cells", {"band_levels": 1, "fine_vote_views": 0}),
+    ("+ narrow band: 96 cells", {"band_levels": 2, "fine_vote_views": 0}),
+    ("+ narrow band: 192 cells", {"band_levels": 3, "fine_vote_views": 0}),
+    ("+ narrow band: 384 cells", {"band_levels": 4, "fine_vote_views": 0}),
     ("default without the mask repair", {"repair_coverage": 1e-9}),
+    ("default (auto levels, tolerance chosen by the rim test)", {}),
 ]
 
 
@@ -85,11 +86,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--views", type=int, default=50)
     p.add_argument("--scale", type=float, default=0.5)
     p.add_argument("--holdout-every", type=int, default=5)
-    p.add_argument("--carve-res", nargs="+", type=int, default=[64, 128, 192, 256])
-    p.add_argument("--open3d-res", nargs="+", type=int, default=[64, 128])
+    p.add_argument("--carve-res", nargs="+", type=int, default=None, help="default 64 128 192 256")
+    p.add_argument("--open3d-res", nargs="*", type=int, default=None, help="default 64 128 (none: skip)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--paper", action="store_true", help="also run TORM-paper (slow)")
-    p.add_argument("--no-ablation", dest="ablation", action="store_false")
+    p.add_argument("--ablation-scenes", nargs="*", default=None,
+                   help="scenes that also get the per-stage ablation and the corrupted-mask case")
     p.add_argument("--corrupt-preset", default="paper", help="noisy-segmenter preset of the corrupted case ('' = skip)")
     p.add_argument("--threads", type=int, default=bc.THREADS)
     p.add_argument("--redo", action="store_true", help="rerun scenes already in the result file")
@@ -97,8 +99,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     a = p.parse_args(argv)
     if a.quick:
         a.scenarios = a.scenarios or ["rw3"]
-        a.views, a.scale, a.carve_res, a.open3d_res, a.repeats = 15, 0.25, [32, 64], [32], 1
+        a.views, a.scale, a.repeats = 15, 0.25, 1
+        a.carve_res = a.carve_res or [32, 64]
+        a.open3d_res = [32] if a.open3d_res is None else a.open3d_res
+        a.ablation_scenes = a.scenarios if a.ablation_scenes is None else a.ablation_scenes
     a.scenarios = a.scenarios or ALL_SCENES
+    a.carve_res = a.carve_res or [64, 128, 192, 256]
+    a.open3d_res = [64, 128] if a.open3d_res is None else a.open3d_res
+    if a.ablation_scenes is None:
+        a.ablation_scenes = ["rw1", "rw4", "rw8", "syn5", "syn12"]
     return a
 
 
@@ -173,7 +182,7 @@ def score(objects: list[TriMesh], gt_meshes: list[TriMesh], held: Capture) -> di
     H, W = held.image_size
     ious = []
     for v in held.views:
-        r = render_mask(union.verts_vx3, union.faces_fx3, v.K, v.T_cam_world, H, W)
+        r = render_mask_fast(union.verts_vx3, union.faces_fx3, v.K, v.T_cam_world, H, W)
         g = v.mask > 0
         u = (r | g).sum()
         ious.append(float((r & g).sum() / u) if u else 1.0)
@@ -219,6 +228,11 @@ def run_methods(methods: dict[str, Callable], cap: Capture, held: Capture, gt: l
     return out
 
 
+def _resolve(kw: dict[str, Any], n_views: int) -> dict[str, Any]:
+    """Ablation overrides with "15%" view counts turned into views of this capture."""
+    return {k: (round(0.15 * n_views) if v == "15%" else v) for k, v in kw.items()}
+
+
 def corrupted_capture(cap: Capture, preset: str, seed: int) -> tuple[Capture, dict[str, Any]]:
     res = make_segmenter("noisy", {"preset": preset, "seed": seed}).segment(cap)
     q = res.info["quality"]
@@ -245,13 +259,16 @@ def sim_scene(a: argparse.Namespace, name: str) -> dict[str, Any]:
         pcfg = ReconstructionConfig(mode="paper")
         row["methods"].update(run_methods({mode_label(pcfg): torm_method(pcfg)}, cap, held, scene.gt_meshes, 0,
                                           set()))
-    if a.ablation:
-        abl = {label: torm_method(ReconstructionConfig(**kw)) for label, kw in ABLATION}
-        row["ablation"] = run_methods(abl, cap, held, scene.gt_meshes, 0, set())
+    if name not in a.ablation_scenes:
+        row["load_avg_1min_end"] = os.getloadavg()[0]
+        return row
+    abl = {label: torm_method(ReconstructionConfig(**_resolve(kw, len(cap)))) for label, kw in ABLATION}
+    row["ablation"] = run_methods(abl, cap, held, scene.gt_meshes, 0, set())
     if a.corrupt_preset:
         ccap, q = corrupted_capture(cap, a.corrupt_preset, a.seed)
         cm = {FAST: torm_method(fast_cfg), "previous default": torm_method(ReconstructionConfig(**ABLATION[0][1])),
-              "default without the mask repair": torm_method(ReconstructionConfig(**ABLATION[-1][1]))}
+              "default without the mask repair": torm_method(ReconstructionConfig(**ABLATION[-2][1])),
+              "strict narrow band 192 (no tolerance)": torm_method(ReconstructionConfig(fine_vote_views=0))}
         for r in a.carve_res[-2:]:
             cm[f"carve {r}^3"] = carve_method(r)
         row["corrupted"] = {**q, "methods": run_methods(cm, ccap, held, scene.gt_meshes, 0, set())}
