@@ -9,8 +9,8 @@ Two steps (world frame, metres):
    (and of ``z >= table_z`` when there is a table) is found by six linear programs.
 2. **Hull.** That box, enlarged by ``search_margin`` of its size on every side (so an object that a few
    masks miss is not cut), is covered by a coarse lattice on which the projective visual hull with a
-   vote tolerance is evaluated; the box of the lattice points inside the hull, grown by one lattice
-   cell and by ``margin`` of its size, is the result.
+   vote tolerance is evaluated; the box of the lattice points inside the hull and seen by enough views,
+   grown by ``margin`` of its size (at least two lattice cells), is the result.
 
 Errors name the keys to set instead (``workspace_bounds`` in transforms.json, ``--bounds``,
 ``ReconstructionConfig.bounds``).
@@ -116,6 +116,7 @@ def auto_bounds(
     lattice_res: int = 48,
     search_margin: float = 0.5,
     margin: float = 0.1,
+    min_views: int | None = None,
 ) -> np.ndarray:
     """(2, 3) reconstruction box (m, world frame) from the cameras and masks (see the module docstring).
 
@@ -127,6 +128,8 @@ def auto_bounds(
         lattice_res: lattice points along the longest axis of the search box.
         search_margin: the cone box is enlarged by this fraction of its size on every side before the hull.
         margin: the hull's box is grown by this fraction of its size on every side (at least 2 lattice cells).
+        min_views: hull points seen by fewer views are ignored (regions few views look at are unbounded
+            phantoms, not objects); None = max(3, 20 % of the views), as ``min_views_per_object``.
     """
     box = cone_box(silhouettes_vxhxw, Ks_vx3x3, T_world_cam_vx4x4, table_z)
     ext = box[1] - box[0]
@@ -139,8 +142,10 @@ def auto_bounds(
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     field = ProjectiveSDF(silhouettes_vxhxw, Ks_vx3x3, T_world_cam_vx4x4, roi_bounds_2x3=search,
                           vote_views=vote_views)
-    val, _ = field(pts)
-    inside = pts[val < 0]
+    val, n_seen = field(pts)
+    V = len(silhouettes_vxhxw)
+    n_min = min(V, max(3, int(np.ceil(0.2 * V)))) if min_views is None else min_views
+    inside = pts[(val < 0) & (n_seen >= n_min)]
     if len(inside) == 0:
         log.info("automatic bounds: the coarse hull is empty; using the silhouette-cone box")
         inside = box
