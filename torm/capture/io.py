@@ -13,7 +13,8 @@ Layout written by :func:`save_capture`::
 right, y up, z backwards, metres), optional ``mask_path``, ``depth_file_path``,
 ``sensor_depth_file_path`` and ``name``, and per-frame ``fl_x, fl_y, cx, cy`` where a view's
 intrinsics differ from the top-level ones. Capture metadata sits at the top level: ``scenario``,
-``seed``, ``object_ids``, ``object_names``, ``table_height`` (m), ``workspace_bounds`` ((2, 3) m),
+``seed``, ``object_ids``, ``object_names``, ``table_height`` (m; null or absent = no table plane),
+``workspace_bounds`` ((2, 3) m; absent = the reconstruction computes a box from the cameras and masks),
 ``metadata`` (free JSON) and ``torm_version``. ``depth_unit_scale_factor`` is 1.0 (metres);
 nerfstudio multiplies depth by its own ``depth_unit_scale_factor`` setting (default 1e-3), so set it
 to 1.0 there when training with our depth. Note that nerfstudio treats ``mask_path`` as a binary
@@ -24,7 +25,10 @@ there is no ``transforms.json``; ``camera_angle_x`` (and ``camera_angle_y``, rad
 lengths; ``file_path`` without an extension (``./train/r_0`` -> ``train/r_0.png``); RGBA images (the
 RGB channels are kept as stored and, when the frame has no ``mask_path``, alpha > 0.5 becomes a
 binary instance mask with id 1); binary 0/255 masks (when the file lists no ``object_ids``) become
-instance 1; frames without masks; 16-bit PNG depth scaled by the file's
+instance 1; soft greyscale masks (coverage or alpha values at the edges, or more than
+:data:`MAX_LABELS` grey levels in an 8-bit file; :func:`mask_kind`) are thresholded at 0.5 into
+instance 1, with one log line; instance ids are taken only from integer-labelled masks, and a mask
+with more than :data:`MAX_LABELS` ids is warned about; frames without masks; 16-bit PNG depth scaled by the file's
 ``depth_unit_scale_factor`` (default 1e-3, i.e. millimetres). Lens distortion coefficients are
 ignored with a warning. Inconsistent folders raise :class:`~torm.errors.CaptureError` naming the
 offending file.

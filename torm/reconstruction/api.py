@@ -26,6 +26,31 @@ Then, in every mode: marching tets / cubes -> connected components -> small comp
 returned) -> the same number of surface samples per object. The checks never follow an instance id
 across views (a real segmenter's ids do not correspond between views).
 
+Defaults and where they come from (measured here unless a source is named; figures in
+``benchmarks/results/recon_vs_carve.md`` unless stated):
+
+=================================  ==========================  ============================================
+setting                            default                     source
+=================================  ==========================  ============================================
+consensus vote (``vote_views``)    0 below 12 views, else      RECONSTRUCTION.md: ~15 % of the views beat
+                                   15 % of the views           segmenter-like corrupted masks
+fine vote candidates               0 and 8 % of the views      rw4, noisy "paper" masks: Chamfer 3.59 mm
+                                                               strict, 2.13 at 4 of 50 views, 2.60 at 8
+``RIM_TOL_PX``                     1.5 px                      strict hull's missed rim: 0.44-0.45 px on GT
+                                                               masks (rw1, rw4, syn12), 3.3-5.9 px on the
+                                                               noisy "paper" masks
+``cell_px`` / band levels          1.5 px -> 192 cells here    per-stage ablation: Chamfer flat from 192 to
+                                                               384 cells at 3x the time
+``band``                           0.4 cell diagonals          identical meshes at 0.25-1.0 on rw4 and
+                                                               syn12 (closure pass as the safety net)
+``min_band_res``                   96 cells                    80 px masks: input-view IoU 0.883 at 48
+                                                               cells, 0.914 at 96
+``skip_cut_views``                 False                       ring8 case: held-out IoU 0.957 (False) vs
+                                                               0.951 (True), volume IoU 0.846 vs 0.832
+``min_views_per_object``           max(3, 20 % of the views)   issue #17: a phantom blob in a box corner
+                                                               few views see; ring8: phantoms in 1-2 of 8
+=================================  ==========================  ============================================
+
 Inputs that adapt to the capture (``None`` = automatic, logged and recorded in ``info``):
 bounds (config, else the capture's ``workspace_bounds``, else :func:`torm.reconstruction.bounds.auto_bounds`),
 table (``no_table``, else ``table_z``, else the capture's ``table_height``; none when it has none),
