@@ -143,7 +143,8 @@ class ReconstructionConfig:
         max_band_res, min_band_res: auto levels give at most / at least this many cells along the longest axis.
         band: cells within this many cell diagonals of the surface are refined.
         carve_res: voxels along the longest axis in ``"carve"`` mode.
-        hull_mask_res: longest mask side (px) of the hulls; 0 = full resolution.
+        hull_mask_res: longest mask side (px) of the dense-grid hull (refinement path); 0 = full resolution
+            (the consensus and the narrow band always use the full-resolution masks).
         refine_iters: DMTet refinement steps in fast mode (0 = the narrow-band hull, no refinement).
         refine_loss: loss of the refinement (``"robust"`` = per-view robust-weighted L2, or ``"init"``).
         refine_lr, refine_lr_min: refinement learning rates (cells per step).
@@ -395,7 +396,7 @@ def _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings) -> 
     t = time.perf_counter()
     repaired, changed = repair_masks(sil, Ks, poses, objs, min_coverage=config.repair_coverage,
                                      skip_cut=config.skip_cut_views)
-    fine = field_.derive(vote_views=config.fine_vote_views, masks_vxhxw=repaired, changed_views=changed)
+    fine = field_.derive(vote_views=config.fine_vote_views or 0, masks_vxhxw=repaired, changed_views=changed)
     timings["repair"] = time.perf_counter() - t
     info["consensus_objects"] = len(objs)
     info["repaired_views"] = changed
