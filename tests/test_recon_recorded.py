@@ -137,3 +137,28 @@ def test_bounds_and_table_errors_name_the_key_or_flag(ring8):
         reconstruct(cap, ReconstructionConfig(bounds=far))
     with pytest.raises(ReconstructionError, match="--no-table"):
         reconstruct(cap, ReconstructionConfig(table_z=5.0))
+
+
+def test_colmap_text_model_converts_to_the_same_capture(ring8, tmp_path):
+    from torm.capture.colmap import colmap_to_transforms
+    from torm.geometry import R_to_quat_wxyz, invert_T
+
+    cap = load_capture(ring8)
+    sparse = tmp_path / "sparse"
+    sparse.mkdir()
+    K = cap.views[0].K
+    H, W = cap.image_size
+    (sparse / "cameras.txt").write_text(f"# Camera list\n1 PINHOLE {W} {H} {K[0, 0]} {K[1, 1]} {K[0, 2]} {K[1, 2]}\n")
+    lines = ["# Image list"]
+    for i, v in enumerate(cap.views):
+        T = invert_T(v.T_world_cam)
+        q = R_to_quat_wxyz(T[:3, :3])
+        lines += [f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, T[:3, 3]))} 1 {i:03d}.png", "1.0 2.0 -1"]
+    (sparse / "images.txt").write_text("\n".join(lines) + "\n")
+    colmap_to_transforms(sparse, ring8 / "images", tmp_path / "cap", masks_dir=ring8 / "masks")
+    got = load_capture(tmp_path / "cap")
+    assert len(got) == len(cap)
+    for a, b in zip(got.views, cap.views, strict=True):
+        np.testing.assert_allclose(a.T_world_cam, b.T_world_cam, atol=1e-9)
+        np.testing.assert_allclose(a.K, b.K)
+        np.testing.assert_array_equal(a.mask, b.mask)
