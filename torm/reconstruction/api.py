@@ -43,6 +43,9 @@ fine vote candidates               0 and 8 % of the views      rw4, noisy "paper
                                                                384 cells at 3x the time
 ``band``                           0.4 cell diagonals          identical meshes at 0.25-1.0 on rw4 and
                                                                syn12 (closure pass as the safety net)
+``max_band_cells``                 120 000                     2x the largest sim scene (syn12: 57.5k surface
+                                                               cells at 192); bounds the time when objects
+                                                               fill many pixels (glass10 case)
 ``min_band_res``                   96 cells                    80 px masks: input-view IoU 0.883 at 48
                                                                cells, 0.914 at 96
 ``skip_cut_views``                 False                       ring8 case: held-out IoU 0.957 (False) vs
@@ -141,6 +144,8 @@ class ReconstructionConfig:
         band_levels: 2x refinements of the band; None = :func:`auto_band_levels`.
         cell_px: auto levels: the finest cell projects to about this many pixels at the median view depth.
         max_band_res, min_band_res: auto levels give at most / at least this many cells along the longest axis.
+        max_band_cells: the band stops refining before its finest level would hold more surface cells than this
+            (time and mesh size grow with them; the largest sim scene, syn12, needs 58k at 192 cells); None = no cap.
         band: cells within this many cell diagonals of the surface are refined.
         carve_res: voxels along the longest axis in ``"carve"`` mode.
         hull_mask_res: longest mask side (px) of the dense-grid hull (refinement path); 0 = full resolution
@@ -175,6 +180,7 @@ class ReconstructionConfig:
     cell_px: float = 1.5
     max_band_res: int = 384
     min_band_res: int = 96
+    max_band_cells: int | None = 120_000
     band: float = 0.4
     carve_res: int = 128
     hull_mask_res: int = 0
@@ -440,7 +446,7 @@ def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, ev, W_fu
     tols = (config.fine_vote_views,) if config.fine_vote_views is not None else fine_vote_candidates(len(Ks))
     t = time.perf_counter()
     meshes, grid = narrow_band_hull(fine, bounds, config.band_base_res, levels, table_z=table_z, band=config.band,
-                                    tolerances=tols)
+                                    tolerances=tols, max_cells=config.max_band_cells)
     timings["narrow_band"] = time.perf_counter() - t - grid.stats["marching_tets_s"]
     timings["marching_tets"] = grid.stats["marching_tets_s"]
     best = 0
@@ -452,7 +458,8 @@ def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, ev, W_fu
         ev.renders = strict_renders if best == 0 else []
         info["strict_rim_miss_px"] = miss
         timings["select_tolerance"] = time.perf_counter() - t
-    info.update(band_levels=levels, fine_vote_views=tols[best], grid_cells=list(grid.res), grid_verts=grid.n_verts,
+    info.update(band_levels=grid.stats["levels_used"], band_levels_planned=levels, fine_vote_views=tols[best],
+                grid_cells=list(grid.res), grid_verts=grid.n_verts,
                 band_cells=len(grid.cells_cx3), cell_m=float(grid.cell_size.max()), band_stats=grid.stats)
     return meshes[best]
 

@@ -115,6 +115,7 @@ def build_band(
     *,
     band: float = 0.4,
     max_closure_iters: int = 64,
+    max_cells: int | None = None,
 ) -> BandGrid:
     """Evaluate ``sdf_fn`` coarse-to-fine in a narrow band around its zero set (see the module docstring).
 
@@ -127,6 +128,8 @@ def build_band(
         levels: number of 2x refinements (0 = a dense grid at ``base_res``, only sign-change cells kept).
         band: cells within ``band`` cell diagonals of zero are refined at each level.
         max_closure_iters: closure passes at the finest level (each adds the missing face neighbours).
+        max_cells: refine no further once the next level would hold more surface cells than this (the
+            cost of the band, of marching tets and of everything downstream grows with them); None = no cap.
 
     Returns:
         :class:`BandGrid` of the finest level (it may hold no cell when the field has no zero crossing).
@@ -158,11 +161,14 @@ def build_band(
         vals, _ = store.get(_vkeys(cells[:, None, :] + CUBE_CORNERS_8x3[None], n))
         neg = vals < 0  # (C, 8, fields)
         mixed = (neg.any(1) & ~neg.all(1)).any(-1)
-        keep = mixed if level == levels else mixed | (np.abs(vals).min((1, 2)) < band * float(np.linalg.norm(cell)))
+        # a surface crossing C cells crosses about 4 C cells of half the size: stop before max_cells
+        last = level == levels or (max_cells is not None and 4 * int(mixed.sum()) > max_cells)
+        keep = mixed if last else mixed | (np.abs(vals).min((1, 2)) < band * float(np.linalg.norm(cell)))
         cells = cells[keep]
         stats["levels"].append({"res": n.tolist(), "cells": int(len(cells)), "evaluated": int(evaluated),
                                 "s": time.perf_counter() - t})
-        if level == levels or len(cells) == 0:
+        if last or len(cells) == 0:
+            stats["levels_used"] = level
             break
         t = time.perf_counter()
         cells = (cells[:, None, :] * 2 + CUBE_CORNERS_8x3[None]).reshape(-1, 3)
@@ -177,6 +183,7 @@ def build_band(
         store = _Store(keys, new_vals)
     if len(cells) == 0:  # no surface: report the finest lattice anyway
         n = np.asarray(cells_per_axis(b, base_res), dtype=np.int64) << levels
+        stats["levels_used"] = levels
     # closure: a sign change across a face means the neighbour holds surface too. Only the cells added last
     # can have neighbours still missing (the set only grows), so each pass checks that frontier.
     t = time.perf_counter()
@@ -247,8 +254,8 @@ def hull_field(field: ProjectiveSDF, bounds_2x3: np.ndarray, margin: float, tabl
 
 
 def narrow_band_hull(field: ProjectiveSDF, bounds_2x3: np.ndarray, base_res: int, levels: int, *,
-                     table_z: float | None = None, band: float = 0.4, tolerances: tuple[int, ...] | None = None
-                     ) -> tuple[list[TriMesh], BandGrid]:
+                     table_z: float | None = None, band: float = 0.4, tolerances: tuple[int, ...] | None = None,
+                     max_cells: int | None = None) -> tuple[list[TriMesh], BandGrid]:
     """The projective hull's surface extracted on a narrow-band tet grid (marching tets).
 
     Args:
@@ -258,6 +265,8 @@ def narrow_band_hull(field: ProjectiveSDF, bounds_2x3: np.ndarray, base_res: int
         table_z: table height (m); nothing below it. None: no table.
         tolerances: several vote tolerances (views) evaluated in the same pass, one mesh each; None = the
             field's own tolerance.
+        max_cells: see :func:`build_band` (the box margin is half a cell of the finest possible level, so it
+            holds at whichever level the band stops).
 
     Returns:
         (closed outward-wound meshes in metres, one per tolerance, the band grid with ``stats``).
@@ -265,7 +274,8 @@ def narrow_band_hull(field: ProjectiveSDF, bounds_2x3: np.ndarray, base_res: int
     b = np.asarray(bounds_2x3, dtype=np.float64)
     n = np.asarray(cells_per_axis(b, base_res)) << levels
     margin = 0.5 * float(((b[1] - b[0]) / n).min())
-    grid = build_band(hull_field(field, b, margin, table_z, tolerances), b, base_res, levels, band=band)
+    grid = build_band(hull_field(field, b, margin, table_z, tolerances), b, base_res, levels, band=band,
+                      max_cells=max_cells)
     t = time.perf_counter()
     meshes = []
     with torch.no_grad():
