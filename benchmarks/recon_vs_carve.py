@@ -44,6 +44,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+# numpy's BLAS single-threaded for every method (before numpy loads): a multithreaded BLAS made small
+# (N, 3) x (3, 3) products 100-300x slower on the loaded 2-core machine (measured here)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as bc  # noqa: E402
 import numpy as np  # noqa: E402
@@ -359,7 +363,8 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
           "Held-out IoU: the union of the objects rendered in the held-out views at the capture resolution vs the "
           "GT masks. Time: minimum over the timed runs after a warm-up, methods interleaved; TORM-fast's time is "
           "the whole `reconstruct()` (objects, checks, point clouds), a carve's is masks -> mesh. Best carve: the "
-          "numpy carve resolution with the lowest Chamfer on the scene.\n",
+          "numpy carve resolution with the lowest Chamfer on the scene. numpy's BLAS and OpenMP run one thread "
+          "(OPENBLAS_NUM_THREADS=OMP_NUM_THREADS=1) for every method; torch uses `threads` below.\n",
           bc.context_md(ctx)]
     if doc.get("scenes"):
         first = next(iter(doc["scenes"].values()))

@@ -101,7 +101,7 @@ def carve_occupancy(
         if len(idx) == 0:
             break
         T_cw = np.linalg.inv(Ts[v])
-        p = pts @ T_cw[:3, :3].T.astype(np.float32) + T_cw[:3, 3].astype(np.float32)
+        p = np.einsum("ij,nj->ni", T_cw[:3, :3].astype(np.float32), pts) + T_cw[:3, 3].astype(np.float32)
         z = p[:, 2]
         front = z > NEAR
         zs = np.where(front, z, 1.0)
