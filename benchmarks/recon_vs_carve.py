@@ -86,6 +86,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--cache", type=Path, default=bc.CAPTURE_CACHE)
     p.add_argument("--parts", nargs="+", default=["sim", "recorded"], choices=["sim", "recorded"])
     p.add_argument("--scenarios", nargs="+", default=None)
+    p.add_argument("--cases", nargs="+", default=None, help="recorded-frames cases (default: all)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--views", type=int, default=50)
     p.add_argument("--scale", type=float, default=0.5)
@@ -305,7 +306,7 @@ def recorded_case(a: argparse.Namespace, case: str) -> dict[str, Any]:
             return _objects(r.mesh), {"bounds": b.tolist()}
         return run
 
-    methods = {FAST: torm_method(cfg), **{f"carve {r}^3": hull(r) for r in a.carve_res if r >= 128}}
+    methods = {FAST: torm_method(cfg), **{f"carve {r}^3": hull(r) for r in a.carve_res}}
     res = run_methods(methods, cap_none, held, gt, a.repeats, set(methods))
     best = _best_carve(res)
     f = res.get(FAST, {})
@@ -486,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
         if "recorded" in a.parts:
             from torm.capture.synthetic import RECORDED_CASES
 
-            for case in RECORDED_CASES:
+            for case in a.cases or RECORDED_CASES:
                 if case in doc["recorded"] and not a.redo:
                     continue
                 doc["recorded"][case] = recorded_case(a, case)
