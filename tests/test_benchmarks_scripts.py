@@ -19,10 +19,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(script: str, tmp: Path) -> None:
+def _run(script: str, tmp: Path, *extra: str) -> None:
     env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
     cmd = [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp / "out"),
-           "--cache", str(tmp / "cache"), "--threads", "1"]
+           "--cache", str(tmp / "cache"), "--threads", "1", *extra]
     res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"{script} failed:\n{res.stderr[-3000:]}"
 
@@ -83,3 +83,19 @@ def test_segmentation_quick_writes_tables(tmp_path: Path) -> None:
     (scene,) = doc["scenes"].values()
     for r in scene["presets"].values():
         assert {"input_iou_mean", "input_iou_min", "n_present", "union"} <= set(r)
+
+
+def test_recon_vs_carve_quick_writes_tables(tmp_path: Path) -> None:
+    _run("recon_vs_carve.py", tmp_path, "--parts", "sim", "--carve-res", "32", "--open3d-res", "--ablation-scenes",
+         "--corrupt-preset", "")
+    out = tmp_path / "out"
+    doc = json.loads((out / "recon_vs_carve.json").read_text())
+    (scene,) = doc["scenes"].values()
+    fast, carve = scene["methods"]["TORM-fast"], scene["methods"]["carve 32^3"]
+    assert scene["n_heldout_views"] == 3 and scene["n_input_views"] == 12
+    for m in (fast, carve):
+        assert m["n_found"] == scene["n_objects"] and 0.5 < m["heldout_iou_mean"] <= 1.0 and m["time_s"] > 0
+    assert fast["chamfer_mm"] < carve["chamfer_mm"]  # 32^3 voxels are coarse; the projective hull is not
+    assert scene["best_carve"] == "carve 32^3" and doc["summary"]["scenes"] == 1
+    md = (out / "recon_vs_carve.md").read_text()
+    assert "TORM-fast (consensus + narrow-band projective hull)" in md and "best carve" in md

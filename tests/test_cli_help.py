@@ -40,7 +40,7 @@ def _examples(text: str) -> list[list[str]]:
         elif line.startswith("    torm "):
             current = line.strip()
         if current is not None and not current.endswith("\\"):
-            out.append(shlex.split(current)[1:])
+            out.append(shlex.split(current, comments=True)[1:])
             current = None
         elif current is not None:
             current = current[:-1]

@@ -75,7 +75,7 @@ def test_fast_mode_reconstructs_both_objects(capture):
     assert all(len(p.points_nx3) == 256 for p in rec.point_clouds)
     centres = sorted(m.verts_vx3.mean(0)[0] for m in rec.object_meshes)
     assert centres[0] == pytest.approx(0.48, abs=0.01) and centres[1] == pytest.approx(0.62, abs=0.01)
-    assert rec.timings["total"] > 0 and "visual_hull" in rec.timings
+    assert rec.timings["total"] > 0 and "narrow_band" in rec.timings
 
 
 def test_fast_mode_with_refinement_keeps_quality(capture):
@@ -142,11 +142,13 @@ def test_bad_inputs_raise_with_view_index():
         reconstruct(_capture(K_override=K_big), ReconstructionConfig(grid_res=16))
     far = trimesh.creation.box(extents=[0.05, 0.05, 0.05])
     far.apply_translation([0.55, 0.40, 0.025])  # outside the box in y
-    with pytest.raises(ReconstructionError, match="object 2 .*outside the reconstruction box"):
-        reconstruct(_capture(objs=[objs[0], far]), ReconstructionConfig(grid_res=16))
+    # per-object problems are reported per object; the other objects are still reconstructed
+    rec = reconstruct(_capture(objs=[objs[0], far]), ReconstructionConfig(grid_res=16))
+    assert rec.n_objects == 1 and rec.object_meshes[0].verts_vx3.mean(0)[0] == pytest.approx(0.48, abs=0.01)
+    assert any("ymax" in r["reason"] for r in rec.info["rejected_objects"]) or rec.info["unexplained_views"]
     huge = trimesh.creation.box(extents=[0.5, 0.5, 0.1])
     huge.apply_translation([0.55, 0.0, 0.05])
-    with pytest.raises(ReconstructionError, match="touches the image border"):
+    with pytest.raises(ReconstructionError, match="touches the reconstruction box.*--bounds"):
         reconstruct(_capture(objs=[huge]), ReconstructionConfig(grid_res=16))
 
 

@@ -211,6 +211,9 @@ def perceive_torm(capture: Capture, segmenter: Any, recon_config: Any) -> Percep
     info["reconstruction_s"] = float(rec.timings.get("total", sum(rec.timings.values())))
     info["reconstruction_timings"] = dict(rec.timings)
     info["reconstruction_info"] = {k: v for k, v in rec.info.items() if isinstance(v, (int, float, str, bool))}
+    # per-object failures (the others are still planned and picked): rejected components, unexplained views
+    info["rejected_objects"] = list(rec.info.get("rejected_objects", []))
+    info["unexplained_views"] = list(rec.info.get("unexplained_views", []))
     if not clouds:
         raise ReconstructionError("no object reconstructed; check masks and cameras")
     return Perception(clouds, list(rec.object_meshes), info, reconstruction=rec)

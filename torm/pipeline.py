@@ -475,12 +475,30 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         if res.outcome is Outcome.PHYSICS:
             aborted = res.message
             record["failure"] = Outcome.PHYSICS.value
-    # Every real object gets an entry; objects never matched by a reconstruction are "not reconstructed".
+    # Every real object gets an entry; objects never matched by a reconstruction are "not reconstructed", each
+    # on its own (the other objects were planned and picked), with the reconstruction's reason when it has one.
     for i in gt_ids:
         if i not in done:
-            done[i] = _obj(i, names, Outcome.NOT_RECONSTRUCTED, "no reconstructed object matched it")
+            done[i] = _obj(i, names, Outcome.NOT_RECONSTRUCTED, _not_reconstructed_reason(per, gt, i))
     record["objects"] = [done[k] for k in sorted(done) if (not gt_ids or k in gt_ids)]
     record["spurious_objects"] = [done[k] for k in sorted(done) if gt_ids and k not in gt_ids]
+
+
+def _not_reconstructed_reason(per: Perception, gt: Any, object_id: int, max_dist: float = 0.04) -> str:
+    """Why object ``object_id`` has no reconstruction: a rejected component near it (its check's reason), else
+    the views whose silhouettes hold regions no reconstructed object explains."""
+    rejected = per.info.get("rejected_objects") or []
+    if gt is not None and rejected:
+        c = gt.object_meshes()[object_id].verts_vx3.mean(axis=0)
+        near = [r for r in rejected if np.linalg.norm(np.asarray(r["centroid"]) - c) < max_dist]
+        if near:
+            return f"rejected by the reconstruction: {near[0]['reason']}"
+    msg = "no reconstructed object matched it"
+    views = per.info.get("unexplained_views") or []
+    if views:
+        msg += (f" (silhouette regions no reconstructed object covers in {len(views)} of the checked views, e.g. "
+                f"{views[:5]}: other views' masks carved it away, e.g. a segmenter that missed it there)")
+    return msg
 
 
 def _object_names(backend: Any) -> dict[int, str]:

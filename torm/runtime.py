@@ -19,15 +19,43 @@ def free_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def default_threads() -> tuple[int, str]:
+    """(torch threads to use, why): ``TORM_THREADS`` when set, else the free cores minus the busy ones.
+
+    "Busy" is the 1-minute load average: on a 2-core machine with load 1.3 this gives 1 thread, with load
+    0.2 two. Oversubscription (more threads than idle cores) made DMTet steps up to 20x slower here
+    (RECONSTRUCTION.md; issue #17: 56.7 s at all threads vs 6.6 s with one under the same load).
+    """
+    env = os.environ.get("TORM_THREADS")
+    if env:
+        return max(1, int(env)), "TORM_THREADS"
+    cores = free_cores()
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # pragma: no cover - no load average on this platform
+        return cores, f"{cores} free cores"
+    n = max(1, min(cores, int(cores - load + 0.5)))
+    return n, f"{cores} free cores, 1-min load {load:.1f}; set TORM_THREADS to choose"
+
+
+_logged: set[int] = set()
+
+
 def configure_threads(n: int | None = None) -> int:
-    """Set torch's intra-op threads to ``n`` (default: the free cores) and return it.
+    """Set torch's intra-op threads to ``n`` (default: :func:`default_threads`) and return it; the choice is
+    logged once per value.
 
     Oversubscription (more threads than free cores) made reconstruction steps 20x slower on a
     2-core machine, so every entry point calls this once.
     """
     import torch
 
-    n = n or free_cores()
+    why = "requested"
+    if not n:
+        n, why = default_threads()
+    if n not in _logged:
+        _logged.add(n)
+        log.info("using %d torch thread(s) (%s)", n, why)
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
     return n

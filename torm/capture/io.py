@@ -13,7 +13,8 @@ Layout written by :func:`save_capture`::
 right, y up, z backwards, metres), optional ``mask_path``, ``depth_file_path``,
 ``sensor_depth_file_path`` and ``name``, and per-frame ``fl_x, fl_y, cx, cy`` where a view's
 intrinsics differ from the top-level ones. Capture metadata sits at the top level: ``scenario``,
-``seed``, ``object_ids``, ``object_names``, ``table_height`` (m), ``workspace_bounds`` ((2, 3) m),
+``seed``, ``object_ids``, ``object_names``, ``table_height`` (m; null or absent = no table plane),
+``workspace_bounds`` ((2, 3) m; absent = the reconstruction computes a box from the cameras and masks),
 ``metadata`` (free JSON) and ``torm_version``. ``depth_unit_scale_factor`` is 1.0 (metres);
 nerfstudio multiplies depth by its own ``depth_unit_scale_factor`` setting (default 1e-3), so set it
 to 1.0 there when training with our depth. Note that nerfstudio treats ``mask_path`` as a binary
@@ -24,7 +25,10 @@ there is no ``transforms.json``; ``camera_angle_x`` (and ``camera_angle_y``, rad
 lengths; ``file_path`` without an extension (``./train/r_0`` -> ``train/r_0.png``); RGBA images (the
 RGB channels are kept as stored and, when the frame has no ``mask_path``, alpha > 0.5 becomes a
 binary instance mask with id 1); binary 0/255 masks (when the file lists no ``object_ids``) become
-instance 1; frames without masks; 16-bit PNG depth scaled by the file's
+instance 1; soft greyscale masks (coverage or alpha values at the edges, or more than
+:data:`MAX_LABELS` grey levels in an 8-bit file; :func:`mask_kind`) are thresholded at 0.5 into
+instance 1, with one log line; instance ids are taken only from integer-labelled masks, and a mask
+with more than :data:`MAX_LABELS` ids is warned about; frames without masks; 16-bit PNG depth scaled by the file's
 ``depth_unit_scale_factor`` (default 1e-3, i.e. millimetres). Lens distortion coefficients are
 ignored with a warning. Inconsistent folders raise :class:`~torm.errors.CaptureError` naming the
 offending file.
@@ -54,6 +58,8 @@ TRANSFORMS_NAMES: tuple[str, ...] = ("transforms.json", "transforms_train.json")
 #: Extensions tried for a ``file_path`` that has none or does not exist as written.
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+#: Up to this many ids per mask an 8-bit mask may be an instance map; more is greyscale (or warned about).
+MAX_LABELS = 48
 
 
 def _json_default(o: Any) -> Any:
@@ -194,7 +200,8 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return np.ascontiguousarray(rgb), alpha
 
 
-def _read_mask(path: Path, transforms: Path) -> np.ndarray:
+def _read_mask(path: Path, transforms: Path) -> tuple[np.ndarray, int]:
+    """(H, W) int32 mask values and the file's full-scale value (255 or 65535)."""
     if not path.is_file():
         raise CaptureError(f"{transforms}: mask file {path} is missing")
     m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -204,7 +211,31 @@ def _read_mask(path: Path, transforms: Path) -> np.ndarray:
         if not (np.all(m == m[..., :1])):
             raise CaptureError(f"mask {path} has differing colour channels; store instance ids in one channel")
         m = m[..., 0]
-    return m.astype(np.int32)
+    return m.astype(np.int32), (65535 if m.dtype == np.uint16 else 255)
+
+
+def mask_kind(mask_hxw: np.ndarray, full: int) -> str:
+    """``"binary"`` (0 and one value), ``"soft"`` (greyscale coverage/alpha) or ``"labels"`` (instance ids).
+
+    Soft: an 8-bit mask with more than :data:`MAX_LABELS` grey levels, or one whose values other than 0 and
+    its most common one sit almost only (> 60 %) on region edges (pixels that differ from a 4-neighbour),
+    as antialiased or matted masks do; an instance map's ids fill regions.
+    """
+    vals, counts = np.unique(mask_hxw, return_counts=True)
+    nz, nzc = vals[vals > 0], counts[vals > 0]
+    if len(nz) <= 1:
+        return "binary"
+    if full == 255 and len(nz) > MAX_LABELS:
+        return "soft"
+    main = nz[np.argmax(nzc)]
+    m = mask_hxw
+    edge = np.zeros(m.shape, bool)
+    edge[1:] |= m[1:] != m[:-1]
+    edge[:-1] |= m[:-1] != m[1:]
+    edge[:, 1:] |= m[:, 1:] != m[:, :-1]
+    edge[:, :-1] |= m[:, :-1] != m[:, 1:]
+    other = (m > 0) & (m != main)
+    return "soft" if edge[other].mean() > 0.6 else "labels"
 
 
 def _read_depth(path: Path, scale: float, transforms: Path) -> np.ndarray:
@@ -301,6 +332,8 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
     out: list[CameraView] = []
     hw: tuple[int, int] | None = None
     alpha_used = False
+    soft_frames: list[int] = []
+    many_ids: list[tuple[int, int]] = []
     for i in indices:
         frame = frames_all[i]
         where = f"{tpath} frame {i}"
@@ -317,7 +350,7 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
             raise CaptureError(f"{where}: has neither file_path nor mask_path")
         if frame.get("mask_path"):
             mpath = root / str(frame["mask_path"])
-            mask = _read_mask(mpath, tpath)
+            mask, full = _read_mask(mpath, tpath)
             label = label or mpath.stem
             if rgb is not None and mask.shape != rgb.shape[:2]:
                 raise CaptureError(
@@ -330,8 +363,17 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
                 extra = sorted(set(np.unique(mask).tolist()) - {0, *object_ids})
                 if extra:
                     raise CaptureError(f"mask {mpath} holds ids {extra} that are not in object_ids {list(object_ids)}")
-            elif set(np.unique(mask).tolist()) <= {0, 255}:
-                mask = (mask > 0).astype(np.int32)  # a binary 0/255 foreground mask (nerfstudio style): object 1
+            else:
+                kind = mask_kind(mask, full)
+                if kind == "soft":  # greyscale coverage / alpha: foreground where it is at least half
+                    mask = (mask >= 0.5 * full).astype(np.int32)
+                    soft_frames.append(i)
+                elif kind == "binary" and mask.max() in (255, 65535):
+                    mask = (mask > 0).astype(np.int32)  # a binary 0/255 foreground mask (nerfstudio style): object 1
+                else:
+                    n_ids = int(np.count_nonzero(np.bincount(mask.ravel())[1:]))
+                    if n_ids > MAX_LABELS:
+                        many_ids.append((i, n_ids))
         elif alpha is not None:
             mask = alpha.astype(np.int32)
             alpha_used = True
@@ -362,6 +404,12 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
         except CaptureError as exc:
             raise CaptureError(f"{where}: {exc}") from exc
 
+    if soft_frames:
+        log.info("%s: %d of %d masks are soft (greyscale coverage or alpha, e.g. frame %d); thresholded at 0.5 into "
+                 "one object (id 1)", tpath, len(soft_frames), len(indices), soft_frames[0])
+    if many_ids:
+        log.warning("%s: %d mask(s) hold more than %d instance ids (frame %d: %d); if these are greyscale values, "
+                    "not ids, store binary or soft 8-bit masks", tpath, len(many_ids), MAX_LABELS, *many_ids[0])
     if not object_ids and alpha_used:
         object_ids, object_names = (1,), ("object",)
     elif not object_ids and any(v.mask is not None for v in out):

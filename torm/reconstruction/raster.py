@@ -98,6 +98,45 @@ def _rasterize_kernel(uvz_mx3, faces_fx3, H, W, tri_id_hw, depth_hw):
 
 
 @nb.njit(cache=True, nogil=True)
+def _silhouette_kernel(uvz_mx3, faces_fx3, H, W, out_hw):  # pragma: no cover - compiled
+    """Hard silhouette: pixel centres covered by any triangle (same rule as ``_rasterize_kernel``, no depth)."""
+    for f in range(faces_fx3.shape[0]):
+        a = faces_fx3[f, 0]
+        b = faces_fx3[f, 1]
+        c = faces_fx3[f, 2]
+        if uvz_mx3[a, 2] < NEAR or uvz_mx3[b, 2] < NEAR or uvz_mx3[c, 2] < NEAR:
+            continue
+        ax = uvz_mx3[a, 0]
+        ay = uvz_mx3[a, 1]
+        bx = uvz_mx3[b, 0]
+        by = uvz_mx3[b, 1]
+        cx = uvz_mx3[c, 0]
+        cy = uvz_mx3[c, 1]
+        c0 = max(0, int(np.ceil(min(ax, min(bx, cx)) - 0.5)))
+        c1 = min(W - 1, int(np.floor(max(ax, max(bx, cx)) - 0.5)))
+        if c0 > c1:
+            continue
+        r0 = max(0, int(np.ceil(min(ay, min(by, cy)) - 0.5)))
+        r1 = min(H - 1, int(np.floor(max(ay, max(by, cy)) - 0.5)))
+        if r0 > r1:
+            continue
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        if abs(area) < 1e-12:
+            continue
+        inv_area = 1.0 / area
+        for r in range(r0, r1 + 1):
+            py = r + 0.5
+            for col in range(c0, c1 + 1):
+                if out_hw[r, col]:
+                    continue
+                px = col + 0.5
+                w0 = ((bx - px) * (cy - py) - (by - py) * (cx - px)) * inv_area
+                w1 = ((cx - px) * (ay - py) - (cy - py) * (ax - px)) * inv_area
+                if w0 >= 0.0 and w1 >= 0.0 and 1.0 - w0 - w1 >= 0.0:
+                    out_hw[r, col] = True
+
+
+@nb.njit(cache=True, nogil=True)
 def _segment_exit(uv, fa, fb, fc, p0x, p0y, dx, dy, t_min, skip_a, skip_b):
     """Exit of the ray p0 + t d (t > t_min) through the triangle's edges, skipping edge (skip_a, skip_b).
 
@@ -305,6 +344,25 @@ def render_depth(verts_mx3, faces_fx3, K: np.ndarray, T_cam_world: np.ndarray, H
 def render_mask(verts_mx3, faces_fx3, K: np.ndarray, T_cam_world: np.ndarray, H: int, W: int) -> np.ndarray:
     """Hard (H, W) bool silhouette (pixel centre covered); no gradients."""
     return render_depth(verts_mx3, faces_fx3, K, T_cam_world, H, W) > 0
+
+
+def render_mask_fast(verts_mx3: np.ndarray, faces_fx3: np.ndarray, K: np.ndarray, T_cam_world: np.ndarray,
+                     H: int, W: int) -> np.ndarray:
+    """Hard (H, W) bool silhouette like :func:`render_mask` (same pixels), without a depth buffer: faster."""
+    v = np.asarray(verts_mx3, dtype=np.float64)
+    f = np.ascontiguousarray(faces_fx3, dtype=np.int64)
+    out = np.zeros((H, W), dtype=bool)
+    if len(f) == 0:
+        return out
+    T = np.asarray(T_cam_world, dtype=np.float64)
+    # einsum, not a BLAS matmul: a multithreaded BLAS made this (N, 3) x (3, 3) product 100-300x slower on
+    # a loaded machine
+    p = np.einsum("ij,nj->ni", T[:3, :3], v) + T[:3, 3]
+    z = p[:, 2]
+    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
+    uvz = np.stack([K[0, 0] * p[:, 0] / zs + K[0, 2], K[1, 1] * p[:, 1] / zs + K[1, 2], z], axis=1)
+    _silhouette_kernel(np.ascontiguousarray(uvz), f, int(H), int(W), out)
+    return out
 
 
 def render_silhouettes(

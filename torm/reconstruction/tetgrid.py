@@ -71,6 +71,9 @@ def _kuhn_templates() -> np.ndarray:
 
 
 _TEMPLATES_6x4 = _kuhn_templates()
+#: Public names: the 8 cube-corner offsets and the 6 Kuhn tets of a cell as corner indices (sparse grids use them).
+CUBE_CORNERS_8x3 = _CORNERS_8x3
+KUHN_TETS_6x4 = _TEMPLATES_6x4
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,8 +23,10 @@ A vertex no view sees gets ``+unseen_value`` (outside).
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
+from collections.abc import Sequence
 
 import cv2
 import numba as nb
@@ -128,6 +130,124 @@ def box_sdf(points_nx3: np.ndarray, bounds_2x3: np.ndarray) -> np.ndarray:
     return np.max(np.maximum(b[0] - points_nx3, points_nx3 - b[1]), axis=1)
 
 
+def vote_index(n_seen_n: np.ndarray, vote_tol: float = 0.0, vote_views: int | None = None) -> np.ndarray:
+    """(N,) how many of the views seeing each point may call it outside before it is carved.
+
+    ``vote_views`` given: that many views, but never half or more of the ``n`` views that see the point
+    (``min(vote_views, (n - 1) // 2)``), so a point seen by few views is decided by their majority.
+    Otherwise the fraction ``vote_tol`` of them: ``floor(vote_tol * n)``. The hull value of a point is the
+    ``(1 + tolerance)``-th largest per-view value.
+    """
+    n = np.asarray(n_seen_n, dtype=np.int64)
+    if vote_views is not None:
+        return np.minimum(int(vote_views), np.maximum(n - 1, 0) // 2)
+    return np.floor(vote_tol * n).astype(np.int64)
+
+
+class ProjectiveSDF:
+    """The projective visual-hull SDF of a set of silhouettes, evaluated at any world points.
+
+    Construction computes one signed 2-D distance transform per view, over the pixel window the region
+    of interest projects into, and keeps them; :meth:`__call__` then costs one compiled projection loop
+    per view over the points. This lets a coarse-to-fine evaluation (:mod:`torm.reconstruction.narrowband`)
+    query the same field many times.
+
+    Args:
+        masks_vxhxw: (V, H, W) silhouettes; any value > 0 (bool True, instance id) is object.
+        Ks_vx3x3: (V, 3, 3) intrinsics in pixels.
+        T_world_cam_vx4x4: (V, 4, 4) camera-to-world poses, OpenCV axes, metres.
+        roi_bounds_2x3: (2, 3) box (m) that holds every point that will be queried (limits the distance
+            transforms to its projection); None = whole images.
+        vote_tol, vote_views: the vote tolerance (:func:`vote_index`).
+        outside_image: ``"unknown"`` (a view says nothing about points outside its image) or ``"outside"``.
+        near: points with camera z <= near (m) are behind the camera: no information.
+        precise: exact Euclidean distance transform (slower) instead of the 5x5 chamfer approximation.
+    """
+
+    def __init__(self, masks_vxhxw: np.ndarray, Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, *,
+                 roi_bounds_2x3: np.ndarray | None = None, vote_tol: float = 0.15, vote_views: int | None = None,
+                 outside_image: str = "unknown", near: float = 1e-3, precise: bool = False) -> None:
+        masks = np.asarray(masks_vxhxw)
+        Ks = np.asarray(Ks_vx3x3, dtype=np.float64)
+        Ts = np.asarray(T_world_cam_vx4x4, dtype=np.float64)
+        if masks.ndim != 3:
+            raise ReconstructionError(f"visual hull: masks must be (V, H, W), got shape {masks.shape}")
+        n_views, H, W = masks.shape
+        if n_views == 0:
+            raise ReconstructionError("visual hull: no views given; pass at least one mask with its camera")
+        if Ks.shape != (n_views, 3, 3) or Ts.shape != (n_views, 4, 4):
+            raise ReconstructionError(
+                f"visual hull: expected Ks ({n_views}, 3, 3) and T_world_cam ({n_views}, 4, 4) for {n_views} masks, "
+                f"got {Ks.shape} and {Ts.shape}"
+            )
+        if not 0.0 <= vote_tol < 1.0:
+            raise ReconstructionError(f"visual hull: vote_tol must be in [0, 1), got {vote_tol}")
+        if vote_views is not None and vote_views < 0:
+            raise ReconstructionError(f"visual hull: vote_views must be >= 0 views, got {vote_views}")
+        if outside_image not in _OUTSIDE_IMAGE:
+            raise ReconstructionError(
+                f"visual hull: outside_image must be one of {_OUTSIDE_IMAGE}, got {outside_image!r}")
+        self.n_views, self.H, self.W = n_views, H, W
+        self.vote_tol, self.vote_views = float(vote_tol), vote_views
+        self.carve_outside = outside_image == "outside"
+        self.near = float(near)
+        self.k_max = 1 + (min(int(vote_views), max(n_views - 1, 0) // 2) if vote_views is not None
+                          else math.floor(vote_tol * n_views))
+        self._roi, self._Ks, self._precise = roi_bounds_2x3, Ks, precise
+        self._views = [self._view(masks[v], Ks[v], Ts[v]) for v in range(n_views)]
+
+    def _view(self, mask_hxw: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> tuple:
+        T_cw = np.linalg.inv(T_world_cam)
+        R, t = T_cw[:3, :3].copy(), T_cw[:3, 3].copy()
+        # distance transform only over the window the region projects into (sign exact; distances
+        # can only ignore mask pixels outside the window, i.e. outside the projected region)
+        r0, r1, c0, c1 = ((0, self.H, 0, self.W) if self._roi is None else
+                          _crop_window(self._roi[0], self._roi[1], R, t, K, self.near, self.H, self.W))
+        sd = signed_distance_px(mask_hxw[r0:r1, c0:c1] > 0, precise=self._precise)
+        return (R, t, K[0, 0], K[1, 1], K[0, 2], K[1, 2], sd, r0, c0, T_world_cam)
+
+    def derive(self, *, vote_views: int | None, masks_vxhxw: np.ndarray | None = None,
+               changed_views: Sequence[int] = ()) -> ProjectiveSDF:
+        """A copy with another ``vote_views`` and, optionally, new masks for ``changed_views`` (only those
+        views' distance transforms are recomputed; the others are shared)."""
+        out = copy.copy(self)
+        out.vote_views = vote_views
+        out.k_max = 1 + (min(int(vote_views), max(self.n_views - 1, 0) // 2) if vote_views is not None
+                         else math.floor(self.vote_tol * self.n_views))
+        out._views = list(self._views)
+        for v in changed_views:
+            out._views[v] = self._view(np.asarray(masks_vxhxw[v]), self._Ks[v], self._views[v][-1])
+        return out
+
+    def _top(self, points_nx3: np.ndarray, k_max: int) -> tuple[np.ndarray, np.ndarray]:
+        pts = np.ascontiguousarray(points_nx3, dtype=np.float32).reshape(-1, 3)
+        top = np.full((len(pts), k_max), -np.inf, dtype=np.float32)
+        n_seen = np.zeros(len(pts), dtype=np.int32)
+        for R, t, fx, fy, cx, cy, sd, r0, c0, _ in self._views:
+            _accumulate_view(pts, R, t, fx, fy, cx, cy, float(self.W), float(self.H), self.near, sd, r0, c0,
+                             self.carve_outside, top, n_seen)
+        return top, n_seen
+
+    def __call__(self, points_nx3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(hull value (N,) float64 m, negative inside; views seeing each point (N,) int32). Unseen: +inf."""
+        top, n_seen = self._top(points_nx3, self.k_max)
+        k_n = vote_index(n_seen, self.vote_tol, self.vote_views)
+        val = top[np.arange(len(top)), np.minimum(k_n, self.k_max - 1)].astype(np.float64)
+        val[n_seen == 0] = np.inf
+        return val, n_seen
+
+    def values(self, points_nx3: np.ndarray, tolerances: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Hull values (N, len(tolerances)) for several vote tolerances (``vote_views`` semantics of
+        :func:`vote_index`) from one projection pass, and the views seeing each point (N,)."""
+        k_max = 1 + min(max(tolerances), max(self.n_views - 1, 0) // 2)
+        top, n_seen = self._top(points_nx3, k_max)
+        rows = np.arange(len(top))
+        out = np.stack([top[rows, np.minimum(vote_index(n_seen, vote_views=t), k_max - 1)] for t in tolerances],
+                       axis=1).astype(np.float64)
+        out[n_seen == 0] = np.inf
+        return out, n_seen
+
+
 def visual_hull_sdf(
     masks_vxhxw: np.ndarray,
     Ks_vx3x3: np.ndarray,
@@ -138,6 +258,7 @@ def visual_hull_sdf(
     workspace_bounds_2x3: np.ndarray | None = None,
     box_margin: float | None = None,
     vote_tol: float = 0.15,
+    vote_views: int | None = None,
     outside_image: str = "unknown",
     near: float = 1e-3,
     precise: bool = False,
@@ -159,6 +280,7 @@ def visual_hull_sdf(
         vote_tol: fraction of the views seeing a vertex that may disagree: a vertex seen by ``n`` views
             is outside when at least ``1 + floor(vote_tol * n)`` of them say so. 0 = strict visual hull.
             Must be in [0, 1).
+        vote_views: instead of ``vote_tol``, a number of views that may disagree (:func:`vote_index`).
         outside_image: ``"unknown"`` (default; the view is ignored for that vertex) or ``"outside"``
             (the vertex is carved by that view).
         near: points with camera z <= near (m) are behind the camera: no information.
@@ -169,25 +291,8 @@ def visual_hull_sdf(
 
     Cost: one distance transform per view (over the window the points project into) plus a compiled
     loop over the points per view; memory is ``4 N (k_max + 1)`` bytes for the running top-k buffer
-    (``k_max = 1 + floor(vote_tol * V)``) plus one mask-sized image, whatever the number of views.
+    plus the distance images (:class:`ProjectiveSDF`).
     """
-    masks = np.asarray(masks_vxhxw)
-    Ks = np.asarray(Ks_vx3x3, dtype=np.float64)
-    Ts = np.asarray(T_world_cam_vx4x4, dtype=np.float64)
-    if masks.ndim != 3:
-        raise ReconstructionError(f"visual hull: masks must be (V, H, W), got shape {masks.shape}")
-    n_views, H, W = masks.shape
-    if n_views == 0:
-        raise ReconstructionError("visual hull: no views given; pass at least one mask with its camera")
-    if Ks.shape != (n_views, 3, 3) or Ts.shape != (n_views, 4, 4):
-        raise ReconstructionError(
-            f"visual hull: expected Ks ({n_views}, 3, 3) and T_world_cam ({n_views}, 4, 4) for {n_views} masks, "
-            f"got {Ks.shape} and {Ts.shape}"
-        )
-    if not 0.0 <= vote_tol < 1.0:
-        raise ReconstructionError(f"visual hull: vote_tol must be in [0, 1), got {vote_tol}")
-    if outside_image not in _OUTSIDE_IMAGE:
-        raise ReconstructionError(f"visual hull: outside_image must be one of {_OUTSIDE_IMAGE}, got {outside_image!r}")
     if isinstance(grid, TetGrid):
         pts = grid.verts_vx3.detach().cpu().numpy().astype(np.float32)
         bounds = grid.bounds if workspace_bounds_2x3 is None else np.asarray(workspace_bounds_2x3, dtype=np.float64)
@@ -201,25 +306,12 @@ def visual_hull_sdf(
             f"visual hull: workspace box {bounds.tolist()} must be (2, 3) with max - min > 2 * box_margin ({margin})"
         )
     N = len(pts)
-    K = 1 + math.floor(vote_tol * n_views)
-    top = np.full((N, K), -np.inf, dtype=np.float32)
-    n_seen = np.zeros(N, dtype=np.int32)
-    lo, hi = (pts.min(0), pts.max(0)) if N else (None, None)
-    for v in range(n_views):
-        T_cw = np.linalg.inv(Ts[v])
-        R, t = T_cw[:3, :3], T_cw[:3, 3]
-        fx, fy, cx, cy = Ks[v, 0, 0], Ks[v, 1, 1], Ks[v, 0, 2], Ks[v, 1, 2]
-        # distance transform only over the window the points project into (sign exact; distances
-        # can only ignore mask pixels outside the window, i.e. outside the projected point box)
-        r0, r1, c0, c1 = _crop_window(lo, hi, R, t, Ks[v], near, H, W) if N else (0, H, 0, W)
-        sd = signed_distance_px(masks[v, r0:r1, c0:c1] > 0, precise=precise)
-        _accumulate_view(pts, R, t, fx, fy, cx, cy, float(W), float(H), float(near), sd, r0, c0,
-                         outside_image == "outside", top, n_seen)
-    k_n = 1 + np.floor(vote_tol * n_seen).astype(np.int64)
-    sdf = top[np.arange(N), np.minimum(k_n, K) - 1].astype(np.float64)
+    roi = np.stack([pts.min(0), pts.max(0)]).astype(np.float64) if N else None
+    field = ProjectiveSDF(masks_vxhxw, Ks_vx3x3, T_world_cam_vx4x4, roi_bounds_2x3=roi, vote_tol=vote_tol,
+                          vote_views=vote_views, outside_image=outside_image, near=near, precise=precise)
+    sdf, n_seen = field(pts)
     extent = float(np.ptp(pts, axis=0).max()) if N else 1.0
-    unseen_value = max(extent, 1e-3)
-    sdf[n_seen == 0] = unseen_value
+    sdf[n_seen == 0] = max(extent, 1e-3)
     if n_seen.min(initial=1) == 0:
         log.info("visual hull: %d of %d points are seen by no view; they are set outside", int((n_seen == 0).sum()), N)
     if table_z is not None:
