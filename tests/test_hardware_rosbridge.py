@@ -135,11 +135,22 @@ def test_arm_stops_by_itself_when_the_link_dies_mid_trajectory(how):
         q0 = arm.state().q
         times, q = _long_move(q0)
         t0 = time.monotonic()
-        cut = {}
-        threading.Timer(1.0, lambda: cut.setdefault("t", srv.freeze() if how == "silent"
-                                                     else (time.monotonic(), srv.drop_connections())[0])).start()
+        cut: dict[str, float] = {}
+        done = threading.Event()
+
+        def kill_link() -> None:
+            # record the time before cutting: the arm may raise (and the test read it) before this returns
+            if how == "silent":
+                cut["t"] = srv.freeze()
+            else:
+                cut["t"] = time.monotonic()
+                srv.drop_connections()
+            done.set()
+
+        threading.Timer(1.0, kill_link).start()
         with pytest.raises(HardwareError, match="stopped"):
             arm.follow_trajectory(times, q)
+        assert done.wait(5.0)
         t_cut = cut["t"]
         bound = arm.stop_within_s
         assert bound is not None and bound < 1.5 and bound == pytest.approx(0.6 + 0.25, abs=0.01)  # horizon + braking
