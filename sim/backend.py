@@ -111,6 +111,7 @@ class _Sim:
             raise ConfigError(f"SimBackendConfig.control_dt {config.control_dt} s must be a multiple of the model "
                               f"timestep {m.opt.timestep} s")
         self.callbacks: list[StepCallback] = []
+        self.execution: Any = None  # sim.realism.ExecutionErrors (latency, joint tracking error) or None
         obj_dofs = [m.jnt_dofadr[m.body_jntadr[o.body_id]] for o in world.objects]
         self._obj_lin = np.array([[a, a + 1, a + 2] for a in obj_dofs], dtype=int).reshape(-1, 3)
         self._warn0 = self._warning_counts()
@@ -146,7 +147,10 @@ class _Sim:
 
     def tick(self) -> None:
         """Advance one control period, check health, then call the step callbacks with the simulated time (s)."""
-        mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+        if self.execution is not None:  # the realism profile's latency and joint error act on this step only
+            self.execution.step(self.model, self.data, self.substeps)
+        else:
+            mujoco.mj_step(self.model, self.data, nstep=self.substeps)
         self.check()
         for fn in list(self.callbacks):
             fn(float(self.data.time))
@@ -203,6 +207,8 @@ class SimArm:
         knots_q = np.vstack([self.target()[None], q_txn])
         dt = sim.config.control_dt
         n = int(np.ceil(knots_t[-1] / dt - 1e-9))
+        if sim.execution is not None:
+            sim.execution.new_motion(n)
         for k in range(1, n + 1):
             t = min(k * dt, knots_t[-1])
             i = int(np.clip(np.searchsorted(knots_t, t) - 1, 0, len(knots_t) - 2))
@@ -210,6 +216,8 @@ class SimArm:
             sim.data.ctrl[self._act] = knots_q[i] + f * (knots_q[i + 1] - knots_q[i])
             sim.tick()
         sim.data.ctrl[self._act] = knots_q[-1]
+        if sim.execution is not None:  # let the delayed targets reach the servo before judging "at rest"
+            sim.run_for(sim.execution.latency_s)
         self._settle()
         return self.state()
 
@@ -348,6 +356,9 @@ class SimBackend:
         world: a built world with a robot (``build_world(..., robot="inovo_2f85")``).
         config: control, settling, gripper and safety settings.
         camera_config: optional ``sim.camera_rig.CameraRigConfig`` for :meth:`capture`.
+        realism: the trial's :class:`sim.realism.RealismRecord` (default: ``world.realism``): its calibration
+            errors perturb the camera poses and intrinsics each capture reports, its execution errors act on every
+            physics step of the arm (the world builder applied its contact and mass values).
 
     Attributes:
         arm: the simulated arm wrapped in :class:`SafeArm`; ``arm.inner`` is the raw :class:`SimArm`.
@@ -357,7 +368,8 @@ class SimBackend:
 
     name = "sim"
 
-    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None) -> None:
+    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None,
+                 realism: Any = None) -> None:
         if world.robot_config is None:
             raise SceneError("SimBackend needs a world with a robot; build it with "
                              "build_world(..., robot='inovo_2f85')")
@@ -373,6 +385,14 @@ class SimBackend:
         self.ground_truth = SimGroundTruth(world)
         self._camera_config = camera_config
         self._rig = None
+        self.realism = realism if realism is not None else world.realism
+        self._captures: list[dict[str, Any]] = []
+        self._n_captures = 0
+        self._true_capture: tuple[Any, Any] | None = None  # (reported, true) of the last capture
+        if self.realism is not None and (self.realism.latency_s is not None or self.realism.joint_error_std_rad):
+            from sim.realism import ExecutionErrors
+
+            self._sim.execution = ExecutionErrors(self.realism, self.arm.inner._act, self.config.control_dt)
 
     @classmethod
     def from_scenario(cls, scenario: str, seed: int = 0, robot: str = "inovo_2f85",
@@ -397,14 +417,37 @@ class SimBackend:
         self.world.reset()
         self._sim.reset_baseline()
         self.gripper.reset()
+        if self._sim.execution is not None:
+            self._sim.execution.reset()
 
     def capture(self, n_views: int | None = None) -> Capture:
-        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden)."""
+        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden).
+
+        With a realism record, the views carry the *reported* poses and intrinsics (hand-eye error, per-view
+        jitter, intrinsics error: :func:`sim.realism.perturb_capture`); the images are rendered with the true ones.
+        """
         if self._rig is None:
             from sim.camera_rig import SimCameraRig
 
             self._rig = SimCameraRig.from_world(self.world, self._camera_config)
-        return self._rig.capture(n_views)
+        capture = self._rig.capture(n_views)
+        if self.realism is None:
+            return capture
+        from sim.realism import perturb_capture
+
+        reported, summary = perturb_capture(self.realism, capture, self._n_captures)
+        self._n_captures += 1
+        if summary:
+            self._captures.append(summary)
+        self._true_capture = (reported, capture)
+        return reported
+
+    def realism_summary(self) -> dict[str, Any]:
+        """What the realism record did in this trial so far: per-capture view jitter, motions and joint errors."""
+        out: dict[str, Any] = {"captures": list(self._captures)}
+        if self._sim.execution is not None:
+            out["execution"] = self._sim.execution.summary()
+        return out
 
     def occlusion_ratio(self, capture: Capture) -> float:
         """The paper's OCC of ``capture`` (taken by :meth:`capture` in the current state): share of views
@@ -415,6 +458,8 @@ class SimBackend:
             from sim.camera_rig import SimCameraRig
 
             self._rig = SimCameraRig.from_world(self.world, self._camera_config)
+        if self._true_capture is not None and capture is self._true_capture[0]:
+            capture = self._true_capture[1]  # measure OCC with the true cameras, not the reported ones
         return float(occlusion_ratio(self._rig, capture).ratio)
 
     def close(self) -> None:

@@ -36,6 +36,7 @@ from torm.errors import ConfigError, SceneError
 from torm.types import TriMesh
 
 if TYPE_CHECKING:
+    from sim.realism import RealismRecord
     from sim.robot_config import RobotConfig
 
 log = logging.getLogger(__name__)
@@ -127,6 +128,7 @@ class World:
         geom_to_instance: (ngeom,) int32, geom id -> instance id k (0 for non-object geoms).
         robot: robot name or None; ``robot_config`` its RobotConfig (None without a robot).
         layout_attempts: layouts sampled until one settled cleanly (1 = first try).
+        realism: the realism record applied to the physics (None: the world as built, i.e. ideal).
     """
 
     model: mujoco.MjModel
@@ -140,6 +142,7 @@ class World:
     robot: str | None = None
     robot_config: RobotConfig | None = None
     layout_attempts: int = 1
+    realism: RealismRecord | None = None
     table_height: float = TABLE_HEIGHT
     workspace_bounds: np.ndarray = field(default_factory=lambda: WORKSPACE_BOUNDS.copy())
     _settled: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
@@ -375,6 +378,7 @@ def build_world(
     *,
     config: WorldConfig | None = None,
     placement: PlacementConfig | None = None,
+    realism: RealismRecord | None = None,
 ) -> World:
     """Build, settle and verify the scene for ``scenario`` with the layout drawn from ``seed``.
 
@@ -384,6 +388,8 @@ def build_world(
         robot: robot folder name / robot.yaml path attached at the world origin, or None for no robot.
         config: build and settle parameters.
         placement: placement parameters (gap rules, workspace rectangle).
+        realism: contact and mass values to apply before settling (:func:`sim.realism.apply_physics`);
+            None keeps the as-built (ideal) physics.
 
     Raises:
         SceneError: when no layout settles cleanly within ``config.max_resamples`` layouts.
@@ -406,10 +412,12 @@ def build_world(
         if rcfg is not None:
             rcfg.validate_against(model)
             _set_robot_home(model, data, rcfg)
+        if realism is not None:
+            _apply_realism(model, assets, rcfg, realism)
         objects, g2i = _object_records(model, sc, assets, poses)
         world = World(model=model, data=data, spec=spec, scenario=sc.name, scenario_spec=sc, seed=seed,
                       objects=objects, geom_to_instance=g2i, robot=None if robot is None else str(robot),
-                      robot_config=rcfg, layout_attempts=attempt)
+                      robot_config=rcfg, layout_attempts=attempt, realism=realism)
         for o in objects:
             o._world = world
         mujoco.mj_forward(model, data)
@@ -426,6 +434,17 @@ def build_world(
         log.info("scenario %s seed %d layout %d rejected: %s", sc.name, seed, attempt, "; ".join(last))
     raise SceneError(f"scenario {sc.name!r} seed {seed}: no layout settled cleanly in {attempts} attempt(s); "
                      f"last problems: {'; '.join(last)}")
+
+
+def _apply_realism(model: mujoco.MjModel, assets: list[ObjectAsset], rcfg, realism: RealismRecord) -> None:
+    """Contact and mass values of ``realism`` into the compiled model (see :func:`sim.realism.apply_physics`)."""
+    from sim.realism import apply_physics
+
+    bodies = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"obj{k}_{a.name}") for k, a in
+              enumerate(assets, start=1)]
+    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies and model.geom_group[g] == GROUP_COLLISION]
+    pads = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in rcfg.gripper.pad_geoms] if rcfg else []
+    apply_physics(realism, model, bodies, geoms, pads, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table"))
 
 
 def _object_records(

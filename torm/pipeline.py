@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import platform
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -50,8 +50,11 @@ RENDERERS = ("mujoco",)
 #: z-depth of every opaque surface with glass invisible (the camera sees straight through it).
 DEPTH_MODELS = ("ideal",)
 #: Realism profiles of the simulated world (``world.realism``): ``ideal`` = nominal physics, exact
-#: cameras, exact tracking.
-REALISM_PROFILES = ("ideal",)
+#: cameras, exact tracking; ``measured`` = contact, grip force, object mass, calibration and execution errors
+#: drawn per trial from sourced ranges (``sim/realism.py``, table in ``sim/REALISM.md``).
+REALISM_PROFILES = ("ideal", "measured")
+#: Factor groups of a realism profile (``world.factors``; empty = all of them).
+REALISM_FACTORS = ("contact", "grip_force", "objects", "calibration", "execution")
 
 
 @dataclass(frozen=True)
@@ -84,14 +87,24 @@ class WorldSettings:
     """The simulated world's fidelity.
 
     Attributes:
-        realism: realism profile (one of :data:`REALISM_PROFILES`).
+        realism: realism profile (one of :data:`REALISM_PROFILES`); ``ideal`` is the default of a single trial,
+            ``measured`` the default of benchmark runs (``torm bench``).
+        factors: with ``measured``, draw only these factor groups (:data:`REALISM_FACTORS`), the others stay
+            ideal; empty = all. The grip force group replaces ``pick.grip_force`` by the drawn pad force.
     """
 
     realism: str = "ideal"
+    factors: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.realism not in REALISM_PROFILES:
             raise UnknownNameError("world.realism", self.realism, REALISM_PROFILES)
+        object.__setattr__(self, "factors", tuple(self.factors))
+        for f in self.factors:
+            if f not in REALISM_FACTORS:
+                raise UnknownNameError("world.factors entry", f, REALISM_FACTORS)
+        if len(set(self.factors)) != len(self.factors):
+            raise ConfigError(f"world.factors {list(self.factors)} lists a factor twice")
 
 
 @dataclass(frozen=True)
@@ -172,7 +185,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     """What produced a result: every choice that shapes it, by name (goes first into every trial record).
 
     Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm only; ``noisy:<preset>`` for
-    the error model), ``renderer``, ``depth_model``, ``realism``, ``backend``.
+    the error model), ``renderer``, ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor
+    groups are drawn), ``backend``.
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
@@ -183,7 +197,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         "segmenter": segmenter if torm_method else None,
         "renderer": config.capture.renderer,
         "depth_model": config.capture.depth_model,
-        "realism": config.world.realism,
+        "realism": (f"{config.world.realism}[{'+'.join(config.world.factors)}]"
+                    if config.world.factors and config.world.realism != "ideal" else config.world.realism),
         "backend": config.backend,
     }
 
@@ -196,12 +211,23 @@ def make_backend(config: TrialConfig) -> Any:
         from sim.camera_rig import CameraRigConfig
         from sim.world import build_world
 
-        world = build_world(config.scenario, config.seed, robot=config.robot)
+        realism = sample_trial_realism(config)
+        world = build_world(config.scenario, config.seed, robot=config.robot, realism=realism)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
-        return SimBackend(world, camera_config=cam)
+        return SimBackend(world, camera_config=cam, realism=realism)
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)
+
+
+def sample_trial_realism(config: TrialConfig) -> Any:
+    """The trial's :class:`sim.realism.RealismRecord`, drawn from ``config.world`` and the trial seed."""
+    from sim.realism import sample_realism
+    from sim.scenes.objects import get_object
+    from sim.scenes.scenario import get_scenario
+
+    hollow = [get_object(n).hollow for n in get_scenario(config.scenario).objects]
+    return sample_realism(config.world.realism, config.seed, hollow, config.world.factors)
 
 
 def _segmenter(config: TrialConfig) -> Any:
@@ -283,9 +309,15 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: str | Non
 
         recorder = TrialRecorder(record)
         _attach_recorder(recorder, backend)
+    realism = getattr(backend, "realism", None)
+    result["realism"] = realism.as_dict() if realism is not None else {"profile": config.world.realism}
+    if realism is not None and realism.grip_force_n is not None:  # the drawn pad force is what the pick requests
+        config = replace(config, pick=replace(config.pick, grip_force=realism.grip_force_n))
     try:
         _run(config, backend, rng, timings, result, gt_ids, recorder)
     finally:
+        if hasattr(backend, "realism_summary"):
+            result["realism"]["applied"] = backend.realism_summary()
         if recorder is not None:
             recorder.close()
         if own_backend:
@@ -444,6 +476,6 @@ def trial_succeeded(record: dict[str, Any]) -> bool:
     return bool(record["objects"]) and all(o["outcome"] == Outcome.SUCCESS.value for o in record["objects"])
 
 
-__all__ = ["DEPTH_MODELS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings", "SegmentationSettings", "TormError",
-           "TrialConfig", "WorldSettings", "make_backend", "perceive", "run_trial", "trial_context", "trial_succeeded",
-           "versions"]
+__all__ = ["DEPTH_MODELS", "REALISM_FACTORS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings",
+           "SegmentationSettings", "TormError", "TrialConfig", "WorldSettings", "make_backend", "perceive",
+           "run_trial", "sample_trial_realism", "trial_context", "trial_succeeded", "versions"]

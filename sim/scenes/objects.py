@@ -30,7 +30,29 @@ from sim.scenes.hulls import convex_decomposition
 from torm.errors import UnknownNameError
 
 GLASS_DENSITY = 2500.0  # kg/m^3 (soda-lime glass)
+BOROSILICATE_DENSITY = 2230.0  # kg/m^3 (borosilicate 3.3: DURAN / Pyrex laboratory glass)
 CERAMIC_DENSITY = 2300.0  # kg/m^3 (porcelain/stoneware)
+
+
+@dataclass(frozen=True)
+class Substance:
+    """What an object is made of: density (kg/m^3) and, for glass, the refractive index n_d a renderer reads.
+
+    Sources: soda-lime glass 2.5 g/cm^3 (REALISM.md), n_d 1.52 (typical soda-lime float glass); borosilicate 3.3
+    2.23 g/cm^3 and n_d 1.473 (SCHOTT DURAN data sheet, REALISM.md); ceramic 2.3 g/cm^3 (porcelain/stoneware).
+    """
+
+    name: str
+    density: float
+    ior: float | None
+    transparent: bool
+
+
+SUBSTANCES: dict[str, Substance] = {
+    "soda_lime": Substance("soda_lime", GLASS_DENSITY, 1.52, True),
+    "borosilicate": Substance("borosilicate", BOROSILICATE_DENSITY, 1.473, True),
+    "ceramic": Substance("ceramic", CERAMIC_DENSITY, None, False),
+}
 
 Material = Literal["glass", "opaque"]
 Collision = Literal["sphere", "convex", "coacd"]
@@ -47,6 +69,13 @@ class ObjectAsset:
     density: float  # kg/m^3
     collision: Collision
     description: str = ""
+    hollow: bool = False  # thin-walled (a vessel or a closed shell), not a solid piece of glass
+    substance: str = "soda_lime"  # key of SUBSTANCES (density, refractive index)
+
+    @property
+    def ior(self) -> float | None:
+        """Refractive index n_d of the object's glass (None for opaque objects), for physically based renderers."""
+        return SUBSTANCES[self.substance].ior
 
     @property
     def transparent(self) -> bool:
@@ -133,6 +162,8 @@ class _Entry:
     density: float
     collision: Collision
     description: str
+    hollow: bool = False
+    substance: str = "soda_lime"
 
 
 _CUP_MESH = functools.partial(meshes.open_cup, radius=0.035, height=0.090, wall=0.003, bottom=0.006)
@@ -141,9 +172,9 @@ _LIBRARY: dict[str, _Entry] = {
     "cylinder": _Entry("cylinder", functools.partial(meshes.cylinder, 0.030, 0.100), "glass", GLASS_DENSITY,
                        "convex", "solid glass cylinder, r 30 mm, h 100 mm"),
     "cup": _Entry("cup", _CUP_MESH, "glass", GLASS_DENSITY, "coacd",
-                  "open-top glass cup, r 35 mm, h 90 mm, 3 mm wall, 6 mm base"),
+                  "open-top glass cup, r 35 mm, h 90 mm, 3 mm wall, 6 mm base", hollow=True),
     "opaque_cup": _Entry("cup", _CUP_MESH, "opaque", CERAMIC_DENSITY, "coacd",
-                         "opaque ceramic cup, same geometry as 'cup'"),
+                         "opaque ceramic cup, same geometry as 'cup'", hollow=True, substance="ceramic"),
     "ball": _Entry("ball", functools.partial(meshes.ball, 0.030), "glass", GLASS_DENSITY, "sphere",
                    "solid glass ball, r 30 mm"),
     "cube": _Entry("cube", functools.partial(meshes.box, (0.050, 0.050, 0.050)), "glass", GLASS_DENSITY, "convex",
@@ -160,7 +191,7 @@ _LIBRARY: dict[str, _Entry] = {
                        "convex", "solid glass ice cube, 35 mm, 6 mm edge radius"),
     "toothpick_box": _Entry("toothpick_box", functools.partial(meshes.closed_box_shell, (0.060, 0.040, 0.080), 0.003),
                             "glass", GLASS_DENSITY, "convex",
-                            "closed (lidded) glass toothpick box, 60 x 40 x 80 mm, 3 mm walls"),
+                            "closed (lidded) glass toothpick box, 60 x 40 x 80 mm, 3 mm walls", hollow=True),
 }
 
 
@@ -180,7 +211,8 @@ def get_object(name: str) -> ObjectAsset:
         raise UnknownNameError("object", name, _LIBRARY)
     e = _LIBRARY[name]
     return ObjectAsset(name=name, shape=e.shape, mesh=_shape_mesh(name).copy(), material=e.material,
-                       density=e.density, collision=e.collision, description=e.description)
+                       density=e.density, collision=e.collision, description=e.description, hollow=e.hollow,
+                       substance=e.substance)
 
 
 @functools.cache
