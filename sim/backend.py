@@ -442,6 +442,12 @@ class SimBackend:
         self._true_capture = (reported, capture)
         return reported
 
+    def known_obstacles(self) -> np.ndarray | None:
+        """(M, 3) surface points of the scene's static fixture (rack, tray) in the world (m), or None: what a lab
+        knows about its fixtures from their drawings. The planner keeps the gripper off them."""
+        fx = getattr(self.world, "fixture", None)
+        return None if fx is None else fx.surface_points()
+
     def realism_summary(self) -> dict[str, Any]:
         """What the realism record did in this trial so far: per-capture view jitter, motions and joint errors."""
         out: dict[str, Any] = {"captures": list(self._captures)}

@@ -363,8 +363,10 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         timings["occlusion_metric"] = time.perf_counter() - t
     gripper = _gripper(backend)
     table_z = gt.table_height() if gt is not None else 0.0
+    # Known static fixtures (a rack, a tray): the planner keeps the gripper off them, the drop-offs avoid them.
+    obstacles = backend.known_obstacles() if hasattr(backend, "known_obstacles") else None
     t = time.perf_counter()
-    grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
+    grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng, obstacles)
     timings["grasp_planning"] = time.perf_counter() - t
     if recorder is not None:
         recorder.perception(per.info["capture"], per.meshes or [None] * len(grasps), per.point_clouds, grasps)
@@ -375,6 +377,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     place_area = np.asarray(config.place_area, dtype=float)
     # Where every object is now (m, world xy): where it was seen, or where this trial put it down.
     where = {k: c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in by_label.items()}
+    fixture_xy = [] if obstacles is None else list(np.unique(np.round(np.asarray(obstacles)[:, :2], 2), axis=0))
     timings["execution"] = 0.0
     aborted = None
     for n_pick, label in enumerate(order):
@@ -388,7 +391,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
                 log.warning("re-perception before pick %d failed (%s); using the previous one", n_pick, exc)
             else:
                 record["n_perceptions"] += 1
-                grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
+                grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng,
+                                     obstacles)
                 by_label.update({c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)})
         cloud, cands = by_label[label]
         if not cands:
@@ -398,7 +402,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             done[label] = _obj(label, names, Outcome.OTHER, "reconstructed object matches no real object")
             continue
         xy = cloud.points_nx3[:, :2].mean(axis=0)
-        others = [p for k, p in where.items() if k != label]
+        others = [p for k, p in where.items() if k != label] + fixture_xy
         t = time.perf_counter()
         try:
             dirs = free_directions(xy, others, place_area, config.pick.translate_distance)

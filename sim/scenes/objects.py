@@ -26,7 +26,7 @@ import numpy as np
 import trimesh
 
 from sim.scenes import meshes
-from sim.scenes.hulls import convex_decomposition
+from sim.scenes.hulls import CoacdParams, convex_decomposition
 from torm.errors import UnknownNameError
 
 GLASS_DENSITY = 2500.0  # kg/m^3 (soda-lime glass)
@@ -164,6 +164,7 @@ class _Entry:
     description: str
     hollow: bool = False
     substance: str = "soda_lime"
+    coacd: CoacdParams | None = None  # None: the defaults (CoacdParams())
 
 
 _CUP_MESH = functools.partial(meshes.open_cup, radius=0.035, height=0.090, wall=0.003, bottom=0.006)
@@ -194,6 +195,60 @@ _LIBRARY: dict[str, _Entry] = {
                             "closed (lidded) glass toothpick box, 60 x 40 x 80 mm, 3 mm walls", hollow=True),
 }
 
+# Laboratory glassware (borosilicate 3.3 unless named). Dimensions from catalogue data: DURAN low-form beakers
+# (DIN EN ISO 3819): 50 mL 42 x 60 mm, 100 mL 50 x 70 mm, 250 mL 70 x 95 mm (outer diameter x height); walls chosen
+# so the 50 mL beaker weighs 37 g (REALISM.md: 35-45 g). Narrow-neck Erlenmeyer 100 mL (DIN EN ISO 1773): 64 mm
+# base, 105 mm high, 22 mm neck. Test tubes 12 x 100 mm and 16 x 160 mm on DURAN tubing walls 1.0 and 1.2 mm.
+# 20 mL scintillation vial 28 x 61 mm, 24 mm neck. Graduated cylinder 25 mL (ISO 4788 tall form): 22 mm tube,
+# 170 mm high, 55 mm round glass foot (under the 0.20 m reconstruction box). Petri dish 60 x 15 mm with its lid on.
+# White-wine glass (soda-lime): 70 mm foot, 8 mm stem, 70 mm bowl, 56 mm rim, about 170 mm high. Spouts, rim beads
+# and threads are omitted.
+_THIN = CoacdParams(threshold=0.02)  # thin walls: a finer concavity threshold keeps the cavities open
+_LIBRARY.update({
+    "beaker_50ml": _Entry("beaker_50ml", functools.partial(meshes.beaker, 0.042, 0.060, 0.0018, 0.0025), "glass",
+                          BOROSILICATE_DENSITY, "coacd", "50 mL low-form beaker, 42 x 60 mm, 1.8 mm wall",
+                          hollow=True, substance="borosilicate", coacd=_THIN),
+    "beaker_100ml": _Entry("beaker_100ml", functools.partial(meshes.beaker, 0.050, 0.070, 0.0018, 0.0025), "glass",
+                           BOROSILICATE_DENSITY, "coacd", "100 mL low-form beaker, 50 x 70 mm, 1.8 mm wall",
+                           hollow=True, substance="borosilicate", coacd=_THIN),
+    "beaker_250ml": _Entry("beaker_250ml", functools.partial(meshes.beaker, 0.070, 0.095, 0.0018, 0.0026), "glass",
+                           BOROSILICATE_DENSITY, "coacd", "250 mL low-form beaker, 70 x 95 mm, 1.8 mm wall",
+                           hollow=True, substance="borosilicate", coacd=_THIN),
+    "erlenmeyer_100ml": _Entry("erlenmeyer_100ml",
+                               functools.partial(meshes.erlenmeyer, 0.064, 0.105, 0.022, 0.025, 0.0015, 0.002),
+                               "glass", BOROSILICATE_DENSITY, "coacd",
+                               "100 mL narrow-neck Erlenmeyer flask, 64 mm base, 105 mm high, 22 mm neck, 1.5 mm wall",
+                               hollow=True, substance="borosilicate", coacd=_THIN),
+    "test_tube_12x100": _Entry("test_tube_12x100", functools.partial(meshes.test_tube, 0.012, 0.100, 0.0010), "glass",
+                               BOROSILICATE_DENSITY, "coacd", "round-bottom test tube 12 x 100 mm, 1.0 mm wall",
+                               hollow=True, substance="borosilicate", coacd=_THIN),
+    "test_tube_16x160": _Entry("test_tube_16x160", functools.partial(meshes.test_tube, 0.016, 0.160, 0.0012), "glass",
+                               BOROSILICATE_DENSITY, "coacd", "round-bottom test tube 16 x 160 mm, 1.2 mm wall",
+                               hollow=True, substance="borosilicate", coacd=_THIN),
+    "vial_20ml": _Entry("vial_20ml", functools.partial(meshes.vial, 0.028, 0.061, 0.024, 0.010, 0.0012, 0.0015),
+                        "glass", BOROSILICATE_DENSITY, "coacd", "20 mL screw-neck vial, 28 x 61 mm, 24 mm neck, no cap",
+                        hollow=True, substance="borosilicate", coacd=_THIN),
+    "measuring_cylinder_25ml": _Entry("measuring_cylinder_25ml",
+                                      functools.partial(meshes.measuring_cylinder, 0.022, 0.170, 0.055, 0.006, 0.0015),
+                                      "glass", BOROSILICATE_DENSITY, "coacd",
+                                      "25 mL graduated cylinder, 22 mm tube, 170 mm high, 55 mm round glass foot",
+                                      hollow=True, substance="borosilicate", coacd=_THIN),
+    "petri_dish_60": _Entry("petri_dish_60", functools.partial(meshes.closed_dish, 0.060, 0.015, 0.0015, 0.0015, 0.003),
+                            "glass", BOROSILICATE_DENSITY, "convex", "60 x 15 mm glass Petri dish with its lid on",
+                            hollow=True, substance="borosilicate"),
+    "wine_glass": _Entry("wine_glass",
+                         functools.partial(meshes.stemmed_glass, 0.070, 0.004, 0.008, 0.070, 0.070, 0.095, 0.056,
+                                           0.0012),
+                         "glass", GLASS_DENSITY, "coacd",
+                         "stemmed white-wine glass, 70 mm bowl, 56 mm rim, 8 mm stem, 1.2 mm wall, about 170 mm high",
+                         hollow=True, coacd=_THIN),
+})
+
+#: The laboratory glassware of the library (the ``lab`` suite uses these).
+GLASSWARE: tuple[str, ...] = ("beaker_50ml", "beaker_100ml", "beaker_250ml", "erlenmeyer_100ml", "test_tube_12x100",
+                              "test_tube_16x160", "vial_20ml", "measuring_cylinder_25ml", "petri_dish_60",
+                              "wine_glass")
+
 
 def list_objects() -> list[str]:
     """Names of all library objects, sorted."""
@@ -220,7 +275,7 @@ def _collision_hulls(name: str) -> tuple[trimesh.Trimesh, ...]:
     e = _LIBRARY[name]
     mesh = _shape_mesh(name)
     if e.collision == "coacd":
-        return tuple(convex_decomposition(e.shape, mesh))
+        return tuple(convex_decomposition(e.shape, mesh, e.coacd))
     if e.collision == "convex":
         return (mesh.convex_hull,)
     return ()  # "sphere": the world builder adds a primitive
@@ -235,5 +290,6 @@ def build_hull_cache(write_repo_cache: bool = True) -> dict[str, int]:
     out: dict[str, int] = {}
     for name, e in _LIBRARY.items():
         if e.collision == "coacd" and e.shape not in out:
-            out[e.shape] = len(convex_decomposition(e.shape, _shape_mesh(name), write_repo_cache=write_repo_cache))
+            out[e.shape] = len(convex_decomposition(e.shape, _shape_mesh(name), e.coacd,
+                                                    write_repo_cache=write_repo_cache))
     return out
