@@ -45,9 +45,11 @@ def test_thin_walled_beaker_mass_is_its_glass_volume_times_density():
     w = build_world("lab1", seed=0, robot=None)
     body = next(o for o in w.objects if o.name == "beaker_50ml").body_id
     assert w.model.body_mass[body] == pytest.approx(glass * BOROSILICATE_DENSITY, rel=0.05)
-    # and not the mass of its convex collision pieces (which would fill the cavity)
-    hull_volume = sum(h.volume for h in a.collision_hulls())
-    assert hull_volume * BOROSILICATE_DENSITY > 1.5 * w.model.body_mass[body]
+    # set from the watertight visual mesh, not left to MuJoCo's geoms (the collision geoms have density 0)
+    assert w.model.body_mass[body] == pytest.approx(a.mesh.volume * BOROSILICATE_DENSITY, rel=1e-6)
+    assert a.mesh.convex_hull.volume * BOROSILICATE_DENSITY > 4 * w.model.body_mass[body]  # a solid one weighs more
+    col = [g for g in range(w.model.ngeom) if w.model.geom_bodyid[g] == body and w.model.geom_group[g] == 3]
+    assert len(col) == len(a.collision_hulls()) > 10
 
 
 @pytest.mark.parametrize("name", OPEN_VESSELS)
