@@ -12,7 +12,8 @@ opened with ``torm report``.
 Run: ``MUJOCO_GL=egl python benchmarks/bench_throughput.py [--suite rw] [--scenario rw1 ...]
 [--trials 1] [--method torm] [--workers 2] [--timeout 1800] [--set capture.n_views=20]``.
 ``contended`` is true when the 1-minute load before the run was above half the cores (the numbers
-are then pessimistic).
+are then pessimistic). Benchmark trials default to the ``measured`` realism profile (``--set
+world.realism=ideal`` for the ideal world); ``--name throughput_measured`` writes ``throughput_measured.{json,md}``.
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ def summarise(run_dir: Path, config: BenchConfig, wall_s: float, load_before: tu
         "trials": len(run.rows),
         "wall_s": round(wall_s, 1),
         "trials_per_hour": _r(tph, 1),
+        "realism": sorted({str((r.get("context") or {}).get("realism")) for r in run.rows}),
         "per_method": per_method,
         "failure_categories": failures,
         "machine": {"cpu": cpu_model(), "cores": cores, "platform": platform.platform(),
@@ -103,7 +105,8 @@ def write_markdown(result: dict, path: Path) -> None:
         f"methods {', '.join(c['methods'])}, {c['workers']} worker(s) on the `{c['engine']}` engine, "
         f"overrides: {', '.join(f'`{o}`' for o in c['overrides']) or 'none'}. Date {result['date']}, machine: "
         f"{result['machine']['cpu']} ({result['machine']['cores']} cores). Load average before the run: "
-        f"{result['machine']['loadavg_before']}; contended: **{str(result['contended']).lower()}**.",
+        f"{result['machine']['loadavg_before']}; contended: **{str(result['contended']).lower()}**. Realism profile "
+        f"of the trials: {', '.join(result.get('realism') or ['?'])}.",
         "",
         f"**{result['trials_per_hour']} trials/hour** ({result['trials']} trials in {result['wall_s']} s wall time, "
         "each trial an isolated worker process).",
@@ -145,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--run-dir", default=str(RUN_DIR), help=f"run folder (default {RUN_DIR})")
     ap.add_argument("--results-dir", default=str(RESULTS), help=f"where the result files go (default {RESULTS})")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--name", default="throughput", help="result file stem (default throughput)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s",
                         datefmt="%H:%M:%S")
@@ -159,10 +163,10 @@ def main(argv: list[str] | None = None) -> int:
     result = summarise(run_dir, config, wall, load_before, os.getloadavg())
     out = Path(args.results_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "throughput.json").write_text(json.dumps(result, indent=2) + "\n")
-    write_markdown(result, out / "throughput.md")
+    (out / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_markdown(result, out / f"{args.name}.md")
     print(json.dumps({"trials_per_hour": result["trials_per_hour"], "trials": result["trials"],
-                      "json": str(out / "throughput.json"), "md": str(out / "throughput.md")}, indent=2))
+                      "json": str(out / f"{args.name}.json"), "md": str(out / f"{args.name}.md")}, indent=2))
     return 0
 
 

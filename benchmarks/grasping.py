@@ -10,8 +10,9 @@ Writes ``benchmarks/results/grasping.json`` and ``grasping.md``: per scenario th
 objects, per-object success k/n for each method, all-objects-per-trial success, and the planning and
 execution timings (grasp planning s per scene, wall s and simulated s per pick, real-time factor).
 
-Run: ``MUJOCO_GL=egl python benchmarks/grasping.py [--suite rw|syn] [--trials 3] [--workers 2] [--noisy] [--fresh]``.
-The ``rw`` suite writes ``grasping.{json,md}``, the ``syn`` suite ``grasping_syn.{json,md}``.
+Run: ``MUJOCO_GL=egl python benchmarks/grasping.py [--suite rw|syn|lab|syn_hard] [--trials 3] [--workers 2] [--noisy]
+[--fresh]``. Writes ``grasping[_<suite>][_<realism>].{json,md}`` (``rw`` and ``ideal`` leave their part out, e.g.
+``grasping_lab_measured.md``).
 ``--noisy`` adds a TORM column with segmenter-like corrupted masks (error preset ``paper``).
 
 ``--depth-models statistical,stereo`` writes ``grasping_depth.{json,md}`` instead: the depth baselines
@@ -26,6 +27,10 @@ of CPU on a quiet 2-core machine for 3 trials with ``ideal,statistical``; ``ster
 shipped U-Net reading the rendered RGB); ``--renderer NAME`` renders every capture of the run with that
 renderer (``capture.renderer``, e.g. ``pbr``). Both are named in the result file name
 (``grasping[_syn][_<renderer>][_seg-<segmenter>].json``) and in its config.
+
+Realism: the ``measured`` profile (``sim/REALISM.md``) unless ``--set world.realism=ideal``; the profile goes into the
+run-folder name (``runs/bench_grasping_<suite>_<realism>``) and every table names it. Cells carry Wilson 95 %
+intervals. Time: about 15-60 s per trial here (TORM on 6-10 objects up to several minutes when contended).
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from torm.bench import BenchConfig, run_benchmark  # noqa: E402
 from torm.bench.report import load_run  # noqa: E402
 from torm.bench.results import package_versions  # noqa: E402
+from torm.bench.stats import format_rate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -107,10 +113,14 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
     table: dict[str, dict[str, Any]] = defaultdict(dict)
     timing: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     outcomes: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    contexts: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for column, folder in runs.items():
         run = load_run(folder)
         for row in run.rows:
             col = column_of(column, row)
+            ctx = row.get("context")
+            if ctx and ctx not in contexts[col]:
+                contexts[col].append(ctx)
             sc = row["scenario"]
             cell = table[sc].setdefault(col, {"k": 0, "n": 0, "trials_ok": 0, "trials": 0})
             objs = row.get("objects", [])
@@ -164,9 +174,10 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
         tk = sum(r[col]["trials_ok"] for r in out_rows if col in r)
         tn = sum(r[col]["trials"] for r in out_rows if col in r)
         totals[col] = {"objects": f"{k}/{n}", "object_rate": round(k / n, 3) if n else None,
-                       "trials": f"{tk}/{tn}", "trial_rate": round(tk / tn, 3) if tn else None}
+                       "trials": f"{tk}/{tn}", "trial_rate": round(tk / tn, 3) if tn else None,
+                       "objects_wilson95": format_rate(k, n), "trials_wilson95": format_rate(tk, tn)}
     return {"rows": out_rows, "timings": timings, "totals": totals,
-            "outcomes": {c: dict(v) for c, v in outcomes.items()}}
+            "outcomes": {c: dict(v) for c, v in outcomes.items()}, "contexts": dict(contexts)}
 
 
 def write_markdown(result: dict[str, Any], path: Path) -> None:
@@ -182,7 +193,12 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
     names = {c: column_name(c) for c in cols}
     names["torm_noisy"] = f"TORM (seg. errors: {result['config'].get('noisy_preset', 'paper')})"
     names[f"torm_{seg}"] = f"TORM (segmenter {seg})"
+    ctx_lines = [f"- `{c}`: " + ", ".join(f"{k} {v}" for k, v in x.items() if k != "method")
+                 for c, xs in result.get("contexts", {}).items() for x in xs]
+    paper = result["config"]["suite"] == "rw"
     L = [f"# Grasping success in simulation, suite `{result['config']['suite']}` (shape of the paper's Table III)", "",
+         "What produced the rows (realism profile, segmenter, renderer, depth model, reconstruction mode):", "",
+         *ctx_lines, "",
          f"{result['config']['trials']} trial(s) per scenario, scene layouts seeded per (suite, scenario, trial), "
          f"{result['config']['workers']} workers. Cells: objects picked / objects attempted (and trials in which "
          "every object was picked). A pick succeeds only when the simulated object is lifted 25 cm, moved 20 cm, "
@@ -191,17 +207,20 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
          "another (measured on the capture). "
          f"Date {result['date']}; load average before the run {result['loadavg_before']} "
          f"(contended: **{str(result['contended']).lower()}**).", "",
-         "| Scenario | OCC | Objects | " + " | ".join(names[c] for c in cols) + " | paper TORM (real robot) |",
-         "|---|---|---|" + "---|" * len(cols) + "---|"]
+         "| Scenario | OCC | Objects | " + " | ".join(names[c] for c in cols)
+         + (" | paper TORM (real robot) |" if paper else " |"),
+         "|---|---|---|" + "---|" * len(cols) + ("---|" if paper else "")]
     for r in result["rows"]:
         occ = "–" if r["occ"] is None else f"{100 * r['occ']:.0f}%"
         cells = [f"{r[c]['k']}/{r[c]['n']} ({r[c]['trials_ok']}/{r[c]['trials']})" if c in r else "–" for c in cols]
         L.append(f"| {r['scenario'].upper()} | {occ} | {', '.join(r['objects'])} | " + " | ".join(cells)
-                 + f" | {r['paper_torm'] or '–'} |")
+                 + (f" | {r['paper_torm'] or '–'} |" if paper else " |"))
     tot = result["totals"]
     L.append("| **all** | | | " + " | ".join(
-        f"**{tot[c]['objects']} ({100 * tot[c]['object_rate']:.1f}%)**, trials {tot[c]['trials']}" for c in cols)
-             + " | 88.8% (mean over scenarios) |")
+        f"**{tot[c].get('objects_wilson95', tot[c]['objects'])}**, "
+        f"trials {tot[c].get('trials_wilson95', tot[c]['trials'])}" for c in cols)
+        + (" | 88.8% (mean over scenarios) |" if paper else " |"))
+    L += ["", "Totals: objects picked / attempted and trials with every object picked, with Wilson 95 % intervals."]
     L += ["", "## Timings", "",
           "| method | perception s / scene | grasp planning s / scene (mean, max) | pick wall s | pick sim s | "
           "real-time factor |", "|---|---|---|---|---|---|"]
@@ -234,9 +253,10 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--suite", default="rw", choices=("rw", "syn"))
+    ap.add_argument("--suite", default="rw", choices=("rw", "syn", "lab", "syn_hard"))
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=0, help="threads per trial (0: free cores / workers)")
     ap.add_argument("--scenario", action="append", default=[], help="subset of the suite (default all)")
     ap.add_argument("--noisy", action="store_true", help="add TORM with corrupted masks")
     ap.add_argument("--noisy-preset", default="paper", help="error-model preset of --noisy (default paper)")
@@ -255,23 +275,30 @@ def main(argv: list[str] | None = None) -> int:
     load_before = os.getloadavg()
     t0 = time.monotonic()
     base = dict(suite=args.suite, scenarios=tuple(args.scenario), trials=args.trials, workers=args.workers,
-                timeout_s=900.0)
-    suite_tag = ("" if args.suite == "rw" else f"_{args.suite}") + (
-        "" if args.renderer == "mujoco" else f"_{args.renderer}")
-    runs = {"main": RUNS / f"bench_grasping{suite_tag}"}
+                timeout_s=900.0, threads=args.threads)
+    suite_tag = "" if args.suite == "rw" else f"_{args.suite}"
+    render_tag = "" if args.renderer == "mujoco" else f"_{args.renderer}"
+    # The realism profile is explicit in the overrides (part of the run's identity) and in the run-folder name, so a
+    # folder of another profile is never resumed into this one.
+    realism = next((o.split("=", 1)[1] for o in args.overrides if o.startswith("world.realism=")), "measured")
+    if not any(o.startswith("world.realism=") for o in args.overrides):
+        args.overrides.append(f"world.realism={realism}")
+    folder = f"bench_grasping{suite_tag or '_rw'}{render_tag}_{realism}"
+    runs = {"main": RUNS / folder}
     preset_tag = "" if args.noisy_preset == "paper" else f"_{args.noisy_preset}"
-    tag = suite_tag + (preset_tag if args.noisy else "") + (f"_seg-{args.segmenter}" if args.segmenter else "")
+    tag = (suite_tag + render_tag + ("" if realism == "ideal" else f"_{realism}") + (preset_tag if args.noisy else "")
+           + (f"_seg-{args.segmenter}" if args.segmenter else ""))
     if args.renderer != "mujoco":  # the default adds no override, so existing mujoco run folders still resume
         args.overrides = [*args.overrides, f"capture.renderer={args.renderer}"]
     run_benchmark(BenchConfig(methods=("depth", "oracle", "torm"), overrides=tuple(args.overrides), **base),
                   runs["main"], fresh=args.fresh)
     if args.noisy:
-        runs["torm_noisy"] = RUNS / f"bench_grasping{suite_tag}_noisy{preset_tag}"
+        runs["torm_noisy"] = RUNS / f"{folder}_noisy{preset_tag}"
         ov = (*args.overrides, "segmentation.segmenter=noisy", f"segmentation.preset={args.noisy_preset}")
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs["torm_noisy"], fresh=args.fresh)
     if args.segmenter:
         col = f"torm_{args.segmenter}"
-        runs[col] = RUNS / f"bench_grasping{suite_tag}_seg-{args.segmenter}"
+        runs[col] = RUNS / f"{folder}_seg-{args.segmenter}"
         ov = (*args.overrides, f"segmentation.segmenter={args.segmenter}")
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs[col], fresh=args.fresh)
     result = summarise(runs)

@@ -111,6 +111,7 @@ class _Sim:
             raise ConfigError(f"SimBackendConfig.control_dt {config.control_dt} s must be a multiple of the model "
                               f"timestep {m.opt.timestep} s")
         self.callbacks: list[StepCallback] = []
+        self.execution: Any = None  # sim.realism.ExecutionErrors (latency, joint tracking error) or None
         obj_dofs = [m.jnt_dofadr[m.body_jntadr[o.body_id]] for o in world.objects]
         self._obj_lin = np.array([[a, a + 1, a + 2] for a in obj_dofs], dtype=int).reshape(-1, 3)
         self._warn0 = self._warning_counts()
@@ -146,7 +147,10 @@ class _Sim:
 
     def tick(self) -> None:
         """Advance one control period, check health, then call the step callbacks with the simulated time (s)."""
-        mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+        if self.execution is not None:  # the realism profile's latency and joint error act on this step only
+            self.execution.step(self.model, self.data, self.substeps)
+        else:
+            mujoco.mj_step(self.model, self.data, nstep=self.substeps)
         self.check()
         for fn in list(self.callbacks):
             fn(float(self.data.time))
@@ -209,6 +213,8 @@ class SimArm:
         knots_q = np.vstack([self.target()[None], q_txn])
         dt = sim.config.control_dt
         n = int(np.ceil(knots_t[-1] / dt - 1e-9))
+        if sim.execution is not None:
+            sim.execution.new_motion(n)
         for k in range(1, n + 1):
             t = min(k * dt, knots_t[-1])
             i = int(np.clip(np.searchsorted(knots_t, t) - 1, 0, len(knots_t) - 2))
@@ -216,6 +222,8 @@ class SimArm:
             sim.data.ctrl[self._act] = knots_q[i] + f * (knots_q[i + 1] - knots_q[i])
             sim.tick()
         sim.data.ctrl[self._act] = knots_q[-1]
+        if sim.execution is not None:  # let the delayed targets reach the servo before judging "at rest"
+            sim.run_for(sim.execution.latency_s)
         self._settle()
         return self.state()
 
@@ -359,6 +367,9 @@ class SimBackend:
         renderer: who renders the capture's RGB images: ``mujoco`` (the rig's rasteriser) or ``pbr`` (Mitsuba 3
             path tracing, ``sim.render``); depth and instance masks always come from MuJoCo.
         render_settings: ``torm.capture.render_settings.PbrSettings`` for ``renderer="pbr"``.
+        realism: the trial's :class:`sim.realism.RealismRecord` (default: ``world.realism``): its calibration
+            errors perturb the camera poses and intrinsics each capture reports, its execution errors act on every
+            physics step of the arm (the world builder applied its contact and mass values).
 
     Attributes:
         arm: the simulated arm wrapped in :class:`SafeArm`; ``arm.inner`` is the raw :class:`SimArm`.
@@ -368,9 +379,9 @@ class SimBackend:
 
     name = "sim"
 
-    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None, *,
-                 renderer: str = "mujoco", render_settings: Any = None, depth_model: Any = None,
-                 depth_seed: int | None = None) -> None:
+    def __init__(self, world: World, config: SimBackendConfig | None = None, camera_config: Any = None,
+                 realism: Any = None, *, renderer: str = "mujoco", render_settings: Any = None,
+                 depth_model: Any = None, depth_seed: int | None = None) -> None:
         if world.robot_config is None:
             raise SceneError("SimBackend needs a world with a robot; build it with "
                              "build_world(..., robot='inovo_2f85')")
@@ -391,6 +402,14 @@ class SimBackend:
         self.renderer, self._render_settings = renderer, render_settings
         self._rgb_renderer: Any = None
         self._rig = None
+        self.realism = realism if realism is not None else world.realism
+        self._captures: list[dict[str, Any]] = []
+        self._n_captures = 0
+        self._true_capture: tuple[Any, Any] | None = None  # (reported, true) of the last capture
+        if self.realism is not None and (self.realism.latency_s is not None or self.realism.joint_error_std_rad):
+            from sim.realism import ExecutionErrors
+
+            self._sim.execution = ExecutionErrors(self.realism, self.arm.inner._act, self.config.control_dt)
 
     @classmethod
     def from_scenario(cls, scenario: str, seed: int = 0, robot: str = "inovo_2f85",
@@ -415,6 +434,8 @@ class SimBackend:
         self.world.reset()
         self._sim.reset_baseline()
         self.gripper.reset()
+        if self._sim.execution is not None:
+            self._sim.execution.reset()
 
     def _get_rig(self) -> Any:
         if self._rig is None:
@@ -430,8 +451,25 @@ class SimBackend:
 
     def capture(self, n_views: int | None = None) -> Capture:
         """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden); RGB from
-        :attr:`renderer`."""
-        return self._get_rig().capture(n_views)
+        :attr:`renderer`.
+
+        With a realism record, the views carry the *reported* poses and intrinsics (hand-eye error, per-view
+        jitter, intrinsics error: :func:`sim.realism.perturb_capture`); the images are rendered with the true ones.
+        """
+        return self._report(self._get_rig().capture(n_views))
+
+    def _report(self, capture: Capture) -> Capture:
+        """``capture`` as the realism record's calibration errors report it (unchanged without a record)."""
+        if self.realism is None:
+            return capture
+        from sim.realism import perturb_capture
+
+        reported, summary = perturb_capture(self.realism, capture, self._n_captures)
+        self._n_captures += 1
+        if summary:
+            self._captures.append(summary)
+        self._true_capture = (reported, capture)
+        return reported
 
     def capture_poses(self, n_views: int | None = None) -> np.ndarray:
         """(V, 4, 4) camera-to-world poses (OpenCV axes, m) of the capture layout, without rendering."""
@@ -439,13 +477,28 @@ class SimBackend:
 
     def capture_views(self, n_views: int | None, indices: Any, channels: Any = None) -> Capture:
         """Render only the layout views ``indices`` (of ``n_views``) with ``channels`` (default: the rig's)."""
-        return self._get_rig().capture(n_views, indices=indices, channels=channels)
+        return self._report(self._get_rig().capture(n_views, indices=indices, channels=channels))
+
+    def known_obstacles(self) -> np.ndarray | None:
+        """(M, 3) surface points of the scene's static fixture (rack, tray) in the world (m), or None: what a lab
+        knows about its fixtures from their drawings. The planner keeps the gripper off them."""
+        fx = getattr(self.world, "fixture", None)
+        return None if fx is None else fx.surface_points()
+
+    def realism_summary(self) -> dict[str, Any]:
+        """What the realism record did in this trial so far: per-capture view jitter, motions and joint errors."""
+        out: dict[str, Any] = {"captures": list(self._captures)}
+        if self._sim.execution is not None:
+            out["execution"] = self._sim.execution.summary()
+        return out
 
     def occlusion_ratio(self, capture: Capture) -> float:
         """The paper's OCC of ``capture`` (taken by :meth:`capture` in the current state): share of views
         in which at least one object is partly hidden by another (0..1)."""
         from sim.occlusion import occlusion_ratio
 
+        if self._true_capture is not None and capture is self._true_capture[0]:
+            capture = self._true_capture[1]  # measure OCC with the true cameras, not the reported ones
         return float(occlusion_ratio(self._get_rig(), capture).ratio)
 
     def close(self) -> None:

@@ -7,7 +7,9 @@ collides), 1 robot visuals, 2 glass object visuals, 3 collision geoms, 4 opaque 
 Objects are free bodies ``obj<k>_<name>`` (k = 1-based position in the scenario's object list = the
 instance id in masks). Each has one visual mesh geom ``obj<k>_<name>_visual`` (contype/conaffinity
 0) and collision geoms ``obj<k>_<name>_col<i>`` (group 3). The body frame is the library object
-frame (lowest point at z = 0, footprint centred), with mass and inertia set explicitly from the mesh.
+frame (lowest point at z = 0, footprint centred), with mass and inertia set explicitly from the mesh. A
+scenario's fixture (rack, tray) is a static body ``fixture_<name>`` of opaque box geoms in group 0 (rendered,
+colliding, never in masks).
 
 :func:`build_world` samples a layout from ``seed``, builds the model with MjSpec, lets the objects
 settle under gravity, verifies the result (nothing tipped, slid or fell off, no interpenetration, no
@@ -29,13 +31,15 @@ import mujoco
 import numpy as np
 import trimesh
 
+from sim.scenes.fixtures import PlacedFixture, get_fixture, pose_matrix
 from sim.scenes.objects import ObjectAsset, get_object
-from sim.scenes.placement import Placement, PlacementConfig, place_objects
+from sim.scenes.placement import Placement, PlacementConfig, place_scene
 from sim.scenes.scenario import Scenario, get_scenario
 from torm.errors import ConfigError, SceneError
 from torm.types import TriMesh
 
 if TYPE_CHECKING:
+    from sim.realism import RealismRecord
     from sim.robot_config import RobotConfig
 
 log = logging.getLogger(__name__)
@@ -61,6 +65,7 @@ class WorldConfig:
     drop_height: float = 0.0005  # objects start this far above the table (m)
     max_settle_shift: float = 0.004  # allowed xy slide while settling (m)
     max_settle_tilt_deg: float = 3.0  # allowed tilt of the object's z axis while settling (deg)
+    max_fixture_tilt_deg: float = 6.0  # the same for objects standing in a fixture (a tube leaning in its hole)
     max_penetration: float = 0.002  # deepest allowed contact penetration after settling (m)
     max_resamples: int = 20  # layouts to try before giving up
     timestep: float = 0.002  # s
@@ -69,7 +74,8 @@ class WorldConfig:
         for name in ("settle_time", "timestep"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"WorldConfig.{name} must be positive, got {getattr(self, name)}")
-        for name in ("drop_height", "max_settle_shift", "max_settle_tilt_deg", "max_penetration"):
+        for name in ("drop_height", "max_settle_shift", "max_settle_tilt_deg", "max_fixture_tilt_deg",
+                     "max_penetration"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"WorldConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.max_resamples < 1:
@@ -127,6 +133,8 @@ class World:
         geom_to_instance: (ngeom,) int32, geom id -> instance id k (0 for non-object geoms).
         robot: robot name or None; ``robot_config`` its RobotConfig (None without a robot).
         layout_attempts: layouts sampled until one settled cleanly (1 = first try).
+        realism: the realism record applied to the physics (None: the world as built, i.e. ideal).
+        fixture: the scenario's fixture and its pose (None without one).
     """
 
     model: mujoco.MjModel
@@ -140,6 +148,8 @@ class World:
     robot: str | None = None
     robot_config: RobotConfig | None = None
     layout_attempts: int = 1
+    realism: RealismRecord | None = None
+    fixture: PlacedFixture | None = None
     table_height: float = TABLE_HEIGHT
     workspace_bounds: np.ndarray = field(default_factory=lambda: WORKSPACE_BOUNDS.copy())
     _settled: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
@@ -231,6 +241,7 @@ def _setup_scene(spec: mujoco.MjSpec, cfg: WorldConfig) -> None:
     spec.add_material(name="glass_mat", rgba=list(GLASS_RGBA), specular=1.0, shininess=1.0, reflectance=0.15)
     spec.add_material(name="ceramic_mat", rgba=list(CERAMIC_RGBA), specular=0.4, shininess=0.5, reflectance=0.0)
     spec.add_material(name="leg_mat", rgba=[0.35, 0.35, 0.37, 1], specular=0.3)
+    spec.add_material(name="fixture_mat", rgba=[0.82, 0.84, 0.86, 1], specular=0.2, shininess=0.3)
 
     wb = spec.worldbody
     wb.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], pos=[0, 0, FLOOR_Z],
@@ -265,8 +276,20 @@ def _add_object_assets(spec: mujoco.MjSpec, assets: list[ObjectAsset]) -> None:
                           userface=h.faces.ravel().tolist())
 
 
+def _add_fixture(spec: mujoco.MjSpec, name: str, pose: Placement) -> PlacedFixture:
+    """A static body of opaque box geoms (group 0: rendered and colliding, never in masks) on the table top."""
+    fx = get_fixture(name)
+    body = spec.worldbody.add_body(name=f"fixture_{name}", pos=[pose.x, pose.y, TABLE_HEIGHT], quat=_yaw_quat(pose.yaw))
+    for i, (c, h) in enumerate(fx.boxes):
+        body.add_geom(name=f"fixture_{name}_box{i}", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(h), pos=list(c),
+                      material="fixture_mat", group=GROUP_ENV, friction=list(OBJECT_FRICTION))
+    T = pose_matrix(pose.x, pose.y, pose.yaw)
+    T[2, 3] = TABLE_HEIGHT
+    return PlacedFixture(fx, T)
+
+
 def _add_object(spec: mujoco.MjSpec, k: int, a: ObjectAsset, pose: Placement, drop: float) -> None:
-    body = spec.worldbody.add_body(name=f"obj{k}_{a.name}", pos=[pose.x, pose.y, TABLE_HEIGHT + drop],
+    body = spec.worldbody.add_body(name=f"obj{k}_{a.name}", pos=[pose.x, pose.y, TABLE_HEIGHT + pose.z + drop],
                                    quat=_yaw_quat(pose.yaw))
     body.add_freejoint(name=f"obj{k}_{a.name}_free")
     I = a.inertia_3x3
@@ -348,7 +371,8 @@ def _settle_problems(world: World, poses0: list[np.ndarray], cfg: WorldConfig) -
             problems.append(f"object {o.instance_id} ({o.name}) state is not finite")
         elif T[2, 3] < TABLE_HEIGHT - 0.01 or not (ws[0, 0] <= T[0, 3] <= ws[1, 0] and ws[0, 1] <= T[1, 3] <= ws[1, 1]):
             problems.append(f"object {o.instance_id} ({o.name}) left the table/workspace (at {T[:3, 3].round(3)})")
-        elif shift > cfg.max_settle_shift or tilt > cfg.max_settle_tilt_deg:
+        elif shift > cfg.max_settle_shift or tilt > (cfg.max_fixture_tilt_deg if o.placement.z > 0
+                                                     else cfg.max_settle_tilt_deg):
             problems.append(f"object {o.instance_id} ({o.name}) moved {shift * 1e3:.1f} mm / tilted {tilt:.1f} deg")
     g2i = world.geom_to_instance
     for c in d.contact[: d.ncon]:
@@ -375,6 +399,7 @@ def build_world(
     *,
     config: WorldConfig | None = None,
     placement: PlacementConfig | None = None,
+    realism: RealismRecord | None = None,
 ) -> World:
     """Build, settle and verify the scene for ``scenario`` with the layout drawn from ``seed``.
 
@@ -384,6 +409,8 @@ def build_world(
         robot: robot folder name / robot.yaml path attached at the world origin, or None for no robot.
         config: build and settle parameters.
         placement: placement parameters (gap rules, workspace rectangle).
+        realism: contact and mass values to apply before settling (:func:`sim.realism.apply_physics`);
+            None keeps the as-built (ideal) physics.
 
     Raises:
         SceneError: when no layout settles cleanly within ``config.max_resamples`` layouts.
@@ -396,9 +423,11 @@ def build_world(
     attempts = 1 if sc.poses is not None else cfg.max_resamples
     last: list[str] = []
     for attempt in range(1, attempts + 1):
-        poses = place_objects(sc, rng, placement)
+        layout = place_scene(sc, rng, placement)
+        poses = layout.objects
         spec, rcfg = _new_spec(robot)
         _setup_scene(spec, cfg)
+        fixture = _add_fixture(spec, sc.fixture, layout.fixture) if layout.fixture is not None else None
         _add_object_assets(spec, assets)
         for k, (a, p) in enumerate(zip(assets, poses, strict=True), start=1):
             _add_object(spec, k, a, p, cfg.drop_height)
@@ -406,10 +435,12 @@ def build_world(
         if rcfg is not None:
             rcfg.validate_against(model)
             _set_robot_home(model, data, rcfg)
+        if realism is not None:
+            _apply_realism(model, assets, rcfg, realism)
         objects, g2i = _object_records(model, sc, assets, poses)
         world = World(model=model, data=data, spec=spec, scenario=sc.name, scenario_spec=sc, seed=seed,
                       objects=objects, geom_to_instance=g2i, robot=None if robot is None else str(robot),
-                      robot_config=rcfg, layout_attempts=attempt)
+                      robot_config=rcfg, layout_attempts=attempt, realism=realism, fixture=fixture)
         for o in objects:
             o._world = world
         mujoco.mj_forward(model, data)
@@ -426,6 +457,17 @@ def build_world(
         log.info("scenario %s seed %d layout %d rejected: %s", sc.name, seed, attempt, "; ".join(last))
     raise SceneError(f"scenario {sc.name!r} seed {seed}: no layout settled cleanly in {attempts} attempt(s); "
                      f"last problems: {'; '.join(last)}")
+
+
+def _apply_realism(model: mujoco.MjModel, assets: list[ObjectAsset], rcfg, realism: RealismRecord) -> None:
+    """Contact and mass values of ``realism`` into the compiled model (see :func:`sim.realism.apply_physics`)."""
+    from sim.realism import apply_physics
+
+    bodies = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"obj{k}_{a.name}") for k, a in
+              enumerate(assets, start=1)]
+    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies and model.geom_group[g] == GROUP_COLLISION]
+    pads = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in rcfg.gripper.pad_geoms] if rcfg else []
+    apply_physics(realism, model, bodies, geoms, pads, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table"))
 
 
 def _object_records(

@@ -17,8 +17,8 @@ PAPER_OBJECTS = {"cylinder", "cup", "opaque_cup", "ball", "cube", "hexagonal_pri
                  "ice_cube", "toothpick_box"}
 
 
-def test_library_has_the_paper_objects():
-    assert set(list_objects()) == PAPER_OBJECTS
+def test_library_has_the_paper_objects_and_the_lab_glassware():
+    assert set(list_objects()) == PAPER_OBJECTS | set(objects.GLASSWARE)
 
 
 @pytest.mark.parametrize("name", sorted(PAPER_OBJECTS))
@@ -102,7 +102,8 @@ def test_shipped_hull_cache_avoids_coacd(monkeypatch):
     monkeypatch.setattr(hulls, "_run_coacd", boom)
     objects._collision_hulls.cache_clear()
     try:
-        for name in ("cup", "opaque_cup", "heart"):
+        for name in ("cup", "opaque_cup", "heart", *(n for n in objects.GLASSWARE
+                                                      if get_object(n).collision == "coacd")):
             pieces = get_object(name).collision_hulls()
             assert pieces and all(p.is_convex for p in pieces)
     finally:

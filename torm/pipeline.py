@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import platform
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -58,8 +58,11 @@ RENDERERS = ("mujoco", "pbr")
 #: incidence-dependent probabilities; ``stereo`` an active-stereo D455 simulation (IR dots + SGBM).
 DEPTH_MODELS = ("ideal", "statistical", "stereo")
 #: Realism profiles of the simulated world (``world.realism``): ``ideal`` = nominal physics, exact
-#: cameras, exact tracking.
-REALISM_PROFILES = ("ideal",)
+#: cameras, exact tracking; ``measured`` = contact, grip force, object mass, calibration and execution errors
+#: drawn per trial from sourced ranges (``sim/realism.py``, table in ``sim/REALISM.md``).
+REALISM_PROFILES = ("ideal", "measured")
+#: Factor groups of a realism profile (``world.factors``; empty = all of them).
+REALISM_FACTORS = ("contact", "grip_force", "objects", "calibration", "execution")
 
 
 @dataclass(frozen=True)
@@ -99,14 +102,24 @@ class WorldSettings:
     """The simulated world's fidelity.
 
     Attributes:
-        realism: realism profile (one of :data:`REALISM_PROFILES`).
+        realism: realism profile (one of :data:`REALISM_PROFILES`); ``ideal`` is the default of a single trial,
+            ``measured`` the default of benchmark runs (``torm bench``).
+        factors: with ``measured``, draw only these factor groups (:data:`REALISM_FACTORS`), the others stay
+            ideal; empty = all. The grip force group replaces ``pick.grip_force`` by the drawn pad force.
     """
 
     realism: str = "ideal"
+    factors: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.realism not in REALISM_PROFILES:
             raise UnknownNameError("world.realism", self.realism, REALISM_PROFILES)
+        object.__setattr__(self, "factors", tuple(self.factors))
+        for f in self.factors:
+            if f not in REALISM_FACTORS:
+                raise UnknownNameError("world.factors entry", f, REALISM_FACTORS)
+        if len(set(self.factors)) != len(self.factors):
+            raise ConfigError(f"world.factors {list(self.factors)} lists a factor twice")
 
 
 @dataclass(frozen=True)
@@ -194,7 +207,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
 
     Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm: its segmenter, ``noisy:<preset>``
     for the error model; the depth baselines: ``gt``, they cut with the capture's masks), ``renderer``,
-    ``depth_model``, ``realism``, ``backend``.
+    ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn), ``backend``.
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
@@ -205,7 +218,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         "segmenter": segmenter if torm_method else ("gt" if config.method in ("depth", "depth_fusion") else None),
         "renderer": config.capture.renderer,
         "depth_model": config.capture.depth_model,
-        "realism": config.world.realism,
+        "realism": (f"{config.world.realism}[{'+'.join(config.world.factors)}]"
+                    if config.world.factors and config.world.realism != "ideal" else config.world.realism),
         "backend": config.backend,
     }
 
@@ -219,14 +233,25 @@ def make_backend(config: TrialConfig) -> Any:
         from sim.depth import make_depth_model
         from sim.world import build_world
 
-        world = build_world(config.scenario, config.seed, robot=config.robot)
+        realism = sample_trial_realism(config)
+        world = build_world(config.scenario, config.seed, robot=config.robot, realism=realism)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
         depth = make_depth_model(config.capture.depth_model, config.capture.depth_options)
-        return SimBackend(world, camera_config=cam, renderer=config.capture.renderer,
+        return SimBackend(world, camera_config=cam, realism=realism, renderer=config.capture.renderer,
                           render_settings=config.capture.pbr, depth_model=depth, depth_seed=config.seed)
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)
+
+
+def sample_trial_realism(config: TrialConfig) -> Any:
+    """The trial's :class:`sim.realism.RealismRecord`, drawn from ``config.world`` and the trial seed."""
+    from sim.realism import sample_realism
+    from sim.scenes.objects import get_object
+    from sim.scenes.scenario import get_scenario
+
+    hollow = [get_object(n).hollow for n in get_scenario(config.scenario).objects]
+    return sample_realism(config.world.realism, config.seed, hollow, config.world.factors)
 
 
 def _segmenter(config: TrialConfig) -> Any:
@@ -351,9 +376,15 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
 
         recorder = TrialRecorder(record) if isinstance(record, (str, Path)) else record
         _attach_recorder(recorder, backend)
+    realism = getattr(backend, "realism", None)
+    result["realism"] = realism.as_dict() if realism is not None else {"profile": config.world.realism}
+    if realism is not None and realism.grip_force_n is not None:  # the drawn pad force is what the pick requests
+        config = replace(config, pick=replace(config.pick, grip_force=realism.grip_force_n))
     try:
         _run(config, backend, rng, timings, result, gt_ids, recorder)
     finally:
+        if hasattr(backend, "realism_summary"):
+            result["realism"]["applied"] = backend.realism_summary()
         if recorder is not None:
             recorder.finish(result)
             recorder.close()
@@ -416,8 +447,10 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
         timings["occlusion_metric"] = time.perf_counter() - t
     gripper = _gripper(backend)
     table_z = gt.table_height() if gt is not None else 0.0
+    # Known static fixtures (a rack, a tray): the planner keeps the gripper off them, the drop-offs avoid them.
+    obstacles = backend.known_obstacles() if hasattr(backend, "known_obstacles") else None
     t = time.perf_counter()
-    grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
+    grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng, obstacles)
     timings["grasp_planning"] = time.perf_counter() - t
     log.info("grasp planning: %d candidates for %d objects in %.2f s", sum(len(g) for g in grasps), len(grasps),
              timings["grasp_planning"])
@@ -430,6 +463,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     place_area = np.asarray(config.place_area, dtype=float)
     # Where every object is now (m, world xy): where it was seen, or where this trial put it down.
     where = {k: c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in by_label.items()}
+    fixture_xy = [] if obstacles is None else list(np.unique(np.round(np.asarray(obstacles)[:, :2], 2), axis=0))
     timings["execution"] = 0.0
     aborted = None
     for n_pick, label in enumerate(order):
@@ -443,7 +477,8 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
                 log.warning("re-perception before pick %d failed (%s); using the previous one", n_pick, exc)
             else:
                 record["n_perceptions"] += 1
-                grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng)
+                grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng,
+                                     obstacles)
                 by_label.update({c.object_index: (c, g) for c, g in zip(per.point_clouds, grasps, strict=True)})
         cloud, cands = by_label[label]
         if not cands:
@@ -453,7 +488,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             done[label] = _obj(label, names, Outcome.OTHER, "reconstructed object matches no real object")
             continue
         xy = cloud.points_nx3[:, :2].mean(axis=0)
-        others = [p for k, p in where.items() if k != label]
+        others = [p for k, p in where.items() if k != label] + fixture_xy
         t = time.perf_counter()
         try:
             dirs = free_directions(xy, others, place_area, config.pick.translate_distance)
@@ -552,6 +587,6 @@ def trial_succeeded(record: dict[str, Any]) -> bool:
     return bool(record["objects"]) and all(o["outcome"] == Outcome.SUCCESS.value for o in record["objects"])
 
 
-__all__ = ["DEPTH_MODELS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings", "SegmentationSettings", "TormError",
-           "TrialConfig", "WorldSettings", "make_backend", "perceive", "run_trial", "trial_context", "trial_succeeded",
-           "trial_summary", "versions"]
+__all__ = ["DEPTH_MODELS", "REALISM_FACTORS", "REALISM_PROFILES", "RENDERERS", "CaptureSettings",
+           "SegmentationSettings", "TormError", "TrialConfig", "WorldSettings", "make_backend", "perceive",
+           "run_trial", "sample_trial_realism", "trial_context", "trial_succeeded", "trial_summary", "versions"]

@@ -126,3 +126,73 @@ def convex_decomposition(
     except OSError as exc:
         log.warning("could not write hull cache %s (%s); hulls will be recomputed next process", target, exc)
     return hulls
+
+
+# ------------------------------------------------------------------------------------------------ checks
+def points_inside_mesh(mesh: trimesh.Trimesh, points_nx3: np.ndarray) -> np.ndarray:
+    """(N,) bool: inside the closed mesh, by the parity of ray crossings (numpy Moller-Trumbore, no rtree needed).
+
+    The ray direction is skewed so that it almost never grazes an edge or a vertex of a mesh built on a grid.
+    """
+    p = np.asarray(points_nx3, dtype=np.float64).reshape(-1, 3)
+    d = np.array([0.5773, 0.5774, 0.5775])
+    d /= np.linalg.norm(d)
+    tri = np.asarray(mesh.triangles, dtype=np.float64)  # (F, 3, 3)
+    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    h = np.cross(d, e2)  # (F, 3)
+    a = np.einsum("fi,fi->f", e1, h)
+    ok = np.abs(a) > 1e-14
+    v0, e1, e2, h, a = v0[ok], e1[ok], e2[ok], h[ok], a[ok]
+    inv = 1.0 / a
+    out = np.zeros(len(p), dtype=bool)
+    for s in range(0, len(p), 256):
+        q = p[s:s + 256, None, :] - v0[None]  # (B, F, 3)
+        u = np.einsum("bfi,fi->bf", q, h) * inv
+        qq = np.cross(q, e1[None])
+        v = np.einsum("i,bfi->bf", d, qq) * inv
+        t = np.einsum("fi,bfi->bf", e2, qq) * inv
+        hit = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+        out[s:s + 256] = (hit.sum(axis=1) % 2) == 1
+    return out
+
+
+def points_inside_convex(hull: trimesh.Trimesh, points_nx3: np.ndarray, tol: float = 0.0) -> np.ndarray:
+    """(N,) bool: inside the convex hull of ``hull`` (every face plane, grown by ``tol`` m)."""
+    ch = hull.convex_hull
+    n = np.asarray(ch.face_normals)
+    off = np.einsum("fi,fi->f", n, np.asarray(ch.triangles)[:, 0])
+    return np.all(np.asarray(points_nx3) @ n.T <= off + tol, axis=1)
+
+
+def cavity_probe_points(mesh: trimesh.Trimesh, spacing: float = 0.002, clearance: float = 0.002) -> np.ndarray:
+    """(N, 3) points of the air a vessel holds: inside its convex hull, outside the glass, at least ``clearance``
+    (m, checked along the 6 axis directions) from the glass and from the hull's open side; empty for solids."""
+    lo, hi = mesh.bounds
+    axes = [np.arange(lo[i] + clearance, hi[i] - clearance + 1e-12, spacing) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    grid = grid[points_inside_convex(mesh, grid, tol=-clearance)]
+    if not len(grid):
+        return grid
+    free = ~points_inside_mesh(mesh, grid)
+    for axis in range(3):
+        for sgn in (-1.0, 1.0):
+            if not free.any():
+                break
+            shifted = grid[free].copy()
+            shifted[:, axis] += sgn * clearance
+            sub = np.nonzero(free)[0]
+            free[sub[points_inside_mesh(mesh, shifted)]] = False
+    return grid[free]
+
+
+def cavity_open_fraction(mesh: trimesh.Trimesh, hulls: list[trimesh.Trimesh], spacing: float = 0.002,
+                         clearance: float = 0.002) -> float:
+    """Share of the vessel's cavity probes (see :func:`cavity_probe_points`) that no collision hull covers (1.0 when
+    there is no cavity): how much of a vessel's inside the convex decomposition keeps open."""
+    probes = cavity_probe_points(mesh, spacing, clearance)
+    if not len(probes):
+        return 1.0
+    covered = np.zeros(len(probes), dtype=bool)
+    for h in hulls:
+        covered |= points_inside_convex(h, probes)
+    return float(1.0 - covered.mean())

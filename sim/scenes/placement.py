@@ -8,6 +8,12 @@ mean footprint width ``w`` (see :attr:`ObjectAsset.width`, ~60 mm for the cylind
 - ``dense``:    every gap >= max(min_gap, 0.35 w); each new object sits within max(30 mm, 0.6 w) of an
   anchor (about half an object width, so views occlude each other), with ``min_gap`` = 20 mm so a
   gripper finger still fits between objects.
+- ``packed``:   gaps between 0.15 w (at least 5 mm) and 0.45 w: below half an object width, often
+  narrower than a 2F-85 finger (the ``syn_hard`` suite and lab trays).
+
+Fixture scenes (``Scenario.fixture``): the fixture's pose is drawn first (its footprint inside the
+workspace), its objects go into random rack slots or are placed in the tray's inside like a scene of
+their own, then the other objects are placed on the table at least ``min_gap`` from the fixture.
 
 Objects are placed one by one next to a random already-placed anchor (the first uniformly in the
 workspace). Every footprint lies fully inside the workspace rectangle. A failed object gets
@@ -21,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.scenes.fixtures import get_fixture
 from sim.scenes.objects import ObjectAsset, get_object
 from sim.scenes.scenario import Scenario, get_scenario
 from torm.errors import ConfigError, SceneError
@@ -35,10 +42,13 @@ class GapRule:
     lo: float
     hi: float
     hi_floor: float = 0.0
+    min_gap: float | None = None  # overrides PlacementConfig.min_gap for this rule (m)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.lo <= self.hi:
             raise ConfigError(f"GapRule: need 0 <= lo <= hi, got lo={self.lo}, hi={self.hi}")
+        if self.min_gap is not None and self.min_gap < 0:
+            raise ConfigError(f"GapRule.min_gap must be >= 0 m, got {self.min_gap}")
 
 
 @dataclass(frozen=True)
@@ -47,6 +57,7 @@ class PlacementConfig:
 
     moderate: GapRule = GapRule(1.0, 2.0)
     dense: GapRule = GapRule(0.35, 0.6, hi_floor=0.030)
+    packed: GapRule = GapRule(0.15, 0.45, min_gap=0.005)
     min_gap: float = 0.020
     workspace_xy: tuple[tuple[float, float], tuple[float, float]] = ((0.35, -0.20), (0.75, 0.20))
     tries_per_object: int = 200
@@ -61,8 +72,8 @@ class PlacementConfig:
 
     def gap_range(self, spacing: str, width: float) -> tuple[float, float]:
         """(minimum gap, anchor gap upper bound) in m for a pair of mean footprint width ``width`` (m)."""
-        rule = self.dense if spacing == "dense" else self.moderate
-        lo = max(self.min_gap, rule.lo * width)
+        rule = {"dense": self.dense, "packed": self.packed}.get(spacing, self.moderate)
+        lo = max(self.min_gap if rule.min_gap is None else rule.min_gap, rule.lo * width)
         return lo, max(lo, rule.hi_floor, rule.hi * width)
 
 
@@ -73,6 +84,15 @@ class Placement:
     x: float
     y: float
     yaw: float
+    z: float = 0.0  # height of the surface it stands on above the table top (m): a fixture's floor, else 0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A placed scene: one :class:`Placement` per object (scenario order) and the fixture's pose (None without)."""
+
+    objects: list[Placement]
+    fixture: Placement | None = None
 
 
 def footprint_world(asset: ObjectAsset, pose: Placement) -> np.ndarray:
@@ -129,61 +149,128 @@ def place_objects(
     scenario: Scenario | str, rng: np.random.Generator | int, config: PlacementConfig | None = None
 ) -> list[Placement]:
     """Sample one pose per scenario object (scenario order) satisfying the spacing rules; see module doc."""
+    return place_scene(scenario, rng, config).objects
+
+
+def place_scene(
+    scenario: Scenario | str, rng: np.random.Generator | int, config: PlacementConfig | None = None
+) -> Layout:
+    """Sample the scene's layout: object poses (scenario order) and, for a fixture scene, the fixture's pose."""
     sc = get_scenario(scenario)
     cfg = config or PlacementConfig()
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     assets = [get_object(n) for n in sc.objects]
     ws = np.asarray(cfg.workspace_xy, dtype=np.float64)
     if sc.poses is not None:
-        return _check_fixed(sc, assets, ws)
-    widths = np.array([a.width for a in assets])
-    fps0 = [a.footprint_kx2 for a in assets]
+        return Layout(_check_fixed(sc, assets, ws))
     n = len(assets)
     for _layout in range(cfg.max_layouts):
-        order = rng.permutation(n)
-        poses: dict[int, Placement] = {}
-        fps: dict[int, np.ndarray] = {}
-        for k in order:
-            ok = False
-            for _try in range(cfg.tries_per_object):
-                yaw = float(rng.uniform(0.0, 2.0 * np.pi))
-                R = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
-                local = fps0[k] @ R.T
-                if not poses:
-                    lo, hi = ws[0] - local.min(axis=0), ws[1] - local.max(axis=0)
-                    xy = rng.uniform(lo, hi)
-                    anchor = None
-                else:
-                    anchor = int(rng.choice(list(poses)))
-                    w = 0.5 * (widths[k] + widths[anchor])
-                    g = rng.uniform(*cfg.gap_range(sc.spacing, w))
-                    theta = rng.uniform(0.0, 2.0 * np.pi)
-                    d = 0.5 * (widths[k] + widths[anchor]) + g
-                    xy = np.array([poses[anchor].x, poses[anchor].y]) + d * np.array([np.cos(theta), np.sin(theta)])
-                fp = local + xy
-                if not _inside(fp, ws):
-                    continue
-                if anchor is not None:
-                    w = 0.5 * (widths[k] + widths[anchor])
-                    if polygon_gap(fp, fps[anchor]) > cfg.gap_range(sc.spacing, w)[1]:
-                        continue
-                if all(
-                    polygon_gap(fp, fps[j]) >= cfg.gap_range(sc.spacing, 0.5 * (widths[k] + widths[j]))[0]
-                    for j in poses
-                ):
-                    poses[k] = Placement(float(xy[0]), float(xy[1]), yaw)
-                    fps[k] = fp
-                    ok = True
-                    break
-            if not ok:
-                break
-        if len(poses) == n:
-            return [poses[k] for k in range(n)]
+        if sc.fixture is None:
+            poses = _place_group(list(range(n)), assets, ws, sc.spacing, rng, cfg, [])
+            if poses is not None:
+                return Layout([poses[k][0] for k in range(n)])
+            continue
+        layout = _place_fixture_scene(sc, assets, ws, rng, cfg)
+        if layout is not None:
+            return layout
     raise SceneError(
         f"scenario {sc.name!r}: could not place {n} objects with {sc.spacing!r} spacing in the workspace after "
         f"{cfg.max_layouts} layouts x {cfg.tries_per_object} attempts per object; use fewer or smaller objects, "
         "'moderate' spacing, or fixed poses"
     )
+
+
+def _place_group(ids: list[int], assets: list[ObjectAsset], ws: np.ndarray, spacing: str, rng: np.random.Generator,
+                 cfg: PlacementConfig, obstacles: list[np.ndarray]) -> dict[int, tuple[Placement, np.ndarray]] | None:
+    """One attempt to place objects ``ids`` in the rectangle ``ws`` (anchor-based, module doc); None on failure.
+
+    ``obstacles``: convex polygons (k, 2) every footprint keeps at least ``cfg.min_gap`` from (a fixture).
+    """
+    widths = {k: assets[k].width for k in ids}
+    fps0 = {k: assets[k].footprint_kx2 for k in ids}
+    order = [ids[i] for i in rng.permutation(len(ids))]
+    poses: dict[int, tuple[Placement, np.ndarray]] = {}
+    for k in order:
+        ok = False
+        for _try in range(cfg.tries_per_object):
+            yaw = float(rng.uniform(0.0, 2.0 * np.pi))
+            R = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+            local = fps0[k] @ R.T
+            if not poses:
+                lo, hi = ws[0] - local.min(axis=0), ws[1] - local.max(axis=0)
+                if np.any(hi < lo):
+                    continue
+                xy = rng.uniform(lo, hi)
+                anchor = None
+            else:
+                anchor = int(rng.choice(list(poses)))
+                w = 0.5 * (widths[k] + widths[anchor])
+                g = rng.uniform(*cfg.gap_range(spacing, w))
+                theta = rng.uniform(0.0, 2.0 * np.pi)
+                d = 0.5 * (widths[k] + widths[anchor]) + g
+                xy = np.array([poses[anchor][0].x, poses[anchor][0].y]) + d * np.array([np.cos(theta), np.sin(theta)])
+            fp = local + xy
+            if not _inside(fp, ws):
+                continue
+            if anchor is not None:
+                w = 0.5 * (widths[k] + widths[anchor])
+                if polygon_gap(fp, poses[anchor][1]) > cfg.gap_range(spacing, w)[1]:
+                    continue
+            if any(polygon_gap(fp, ob) < cfg.min_gap for ob in obstacles):
+                continue
+            if all(
+                polygon_gap(fp, poses[j][1]) >= cfg.gap_range(spacing, 0.5 * (widths[k] + widths[j]))[0]
+                for j in poses
+            ):
+                poses[k] = (Placement(float(xy[0]), float(xy[1]), yaw), fp)
+                ok = True
+                break
+        if not ok:
+            return None
+    return poses
+
+
+def _to_world(T: np.ndarray, p: Placement, z: float, yaw0: float) -> Placement:
+    xy = T[:2, :2] @ np.array([p.x, p.y]) + T[:2, 3]
+    return Placement(float(xy[0]), float(xy[1]), float((p.yaw + yaw0) % (2.0 * np.pi)), z)
+
+
+def _place_fixture_scene(sc: Scenario, assets: list[ObjectAsset], ws: np.ndarray, rng: np.random.Generator,
+                         cfg: PlacementConfig) -> Layout | None:
+    """One attempt at a fixture scene: the fixture, its objects, then the table objects; None on failure."""
+    from sim.scenes.fixtures import pose_matrix
+
+    fx = get_fixture(sc.fixture)
+    yaw0 = float(rng.uniform(0.0, 2.0 * np.pi))
+    R = np.array([[np.cos(yaw0), -np.sin(yaw0)], [np.sin(yaw0), np.cos(yaw0)]])
+    local = fx.footprint @ R.T
+    lo, hi = ws[0] - local.min(axis=0), ws[1] - local.max(axis=0)
+    if np.any(hi < lo):
+        return None
+    xy0 = rng.uniform(lo, hi)
+    T = pose_matrix(float(xy0[0]), float(xy0[1]), yaw0)
+    fixture_fp = local + xy0
+    inner = list(range(sc.fixture_objects))
+    out: dict[int, Placement] = {}
+    if fx.slots:
+        if len(inner) > len(fx.slots):
+            raise SceneError(f"scenario {sc.name!r}: {len(inner)} objects for the {len(fx.slots)} slots of "
+                             f"{fx.name!r}; put fewer objects in the fixture")
+        for k, s in zip(inner, rng.choice(len(fx.slots), size=len(inner), replace=False), strict=True):
+            sx, sy = fx.slots[int(s)]
+            out[k] = _to_world(T, Placement(sx, sy, float(rng.uniform(0.0, 2.0 * np.pi))), fx.floor, yaw0)
+    elif inner:
+        placed = _place_group(inner, assets, np.asarray(fx.area, dtype=np.float64), sc.spacing, rng, cfg, [])
+        if placed is None:
+            return None
+        out.update({k: _to_world(T, p, fx.floor, yaw0) for k, (p, _) in placed.items()})
+    rest = list(range(sc.fixture_objects, len(assets)))
+    if rest:
+        placed = _place_group(rest, assets, ws, sc.spacing, rng, cfg, [fixture_fp])
+        if placed is None:
+            return None
+        out.update({k: p for k, (p, _) in placed.items()})
+    return Layout([out[k] for k in range(len(assets))], Placement(float(xy0[0]), float(xy0[1]), yaw0))
 
 
 def _check_fixed(sc: Scenario, assets: list[ObjectAsset], ws: np.ndarray) -> list[Placement]:

@@ -8,6 +8,8 @@ A suite file (``sim/scenes/suites/<suite>.yaml``) looks like::
     scenarios:
       - {name: rw1, objects: [cylinder]}
       - {name: rw7, objects: [ball, cylinder, toothpick_box], spacing: dense}
+      - {name: lab4, objects: [test_tube_16x160, test_tube_12x100, beaker_50ml], fixture: tube_rack,
+         fixture_objects: 2}                 # the first 2 objects stand in the rack, the rest on the table
       - name: demo
         objects: [cup, ball]
         poses: [[0.50, -0.08, 0.0], [0.60, 0.08, 1.57]]   # optional fixed [x (m), y (m), yaw (rad)]
@@ -29,7 +31,8 @@ from torm.errors import ConfigError, UnknownNameError
 
 SUITES_DIR = Path(__file__).resolve().parent / "suites"
 
-Spacing = Literal["moderate", "dense"]
+Spacing = Literal["moderate", "dense", "packed"]
+SPACINGS: tuple[str, ...] = ("moderate", "dense", "packed")
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,8 @@ class Scenario:
     """One scene: ordered object names (instance k = position k-1 + 1), spacing class, optional fixed poses.
 
     ``poses``: None (seeded random placement) or one ``(x, y, yaw)`` per object, world frame, m and rad.
+    ``fixture``: an opaque fixture (``sim.scenes.fixtures``: ``tube_rack``, ``tray``) placed on the table; the first
+    ``fixture_objects`` objects stand in it (rack slots, or the tray's inside at the scene's spacing).
     """
 
     name: str
@@ -45,6 +50,8 @@ class Scenario:
     poses: tuple[tuple[float, float, float], ...] | None = None
     suite: str = ""
     description: str = ""
+    fixture: str | None = None
+    fixture_objects: int = 0
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -57,8 +64,19 @@ class Scenario:
                 raise ConfigError(
                     f"scenario {self.name!r}: objects[{i}]: unknown object {obj!r}; valid choices: {', '.join(valid)}"
                 )
-        if self.spacing not in ("moderate", "dense"):
-            raise ConfigError(f"scenario {self.name!r}: spacing: {self.spacing!r} is not 'moderate' or 'dense'")
+        if self.spacing not in SPACINGS:
+            raise ConfigError(f"scenario {self.name!r}: spacing: {self.spacing!r} is not one of {list(SPACINGS)}")
+        if self.fixture is not None:
+            from sim.scenes.fixtures import list_fixtures
+
+            if self.fixture not in list_fixtures():
+                raise ConfigError(f"scenario {self.name!r}: fixture: unknown fixture {self.fixture!r}; valid "
+                                  f"choices: {', '.join(list_fixtures())}")
+            if self.poses is not None:
+                raise ConfigError(f"scenario {self.name!r}: a fixture scene is placed by seed; drop 'poses'")
+        if not 0 <= self.fixture_objects <= len(self.objects) or (self.fixture_objects and self.fixture is None):
+            raise ConfigError(f"scenario {self.name!r}: fixture_objects must be 0..{len(self.objects)} and needs a "
+                              f"fixture, got {self.fixture_objects} (fixture {self.fixture!r})")
         if self.poses is not None and len(self.poses) != len(self.objects):
             raise ConfigError(
                 f"scenario {self.name!r}: poses: {len(self.poses)} poses for {len(self.objects)} objects; "

@@ -26,13 +26,17 @@ from torm.bench.spec import TrialSpec
 
 log = logging.getLogger(__name__)
 
+#: What benchmark trials default to, under the run's overrides: the measured realism profile (a single
+#: ``torm trial`` defaults to ``ideal``). ``--set world.realism=ideal`` runs a benchmark in the ideal world.
+BENCH_DEFAULTS: dict[str, Any] = {"world": {"realism": "measured"}}
+
 
 def trial_config(spec: TrialSpec, overrides: tuple[str, ...] = ()) -> Any:
-    """The :class:`torm.pipeline.TrialConfig` of ``spec``: defaults + ``overrides`` + the grid cell."""
+    """The :class:`torm.pipeline.TrialConfig` of ``spec``: :data:`BENCH_DEFAULTS` + ``overrides`` + the grid cell."""
     from torm.config import from_dict
     from torm.pipeline import TrialConfig
 
-    base = from_dict(TrialConfig, {}, overrides)
+    base = from_dict(TrialConfig, BENCH_DEFAULTS, overrides)
     return dataclasses.replace(base, scenario=spec.scenario, seed=spec.seed, method=spec.method)
 
 
@@ -45,7 +49,7 @@ def check_overrides(overrides: tuple[str, ...]) -> dict[str, Any]:
     from torm.config import from_dict, to_dict
     from torm.pipeline import TrialConfig
 
-    return to_dict(from_dict(TrialConfig, {}, overrides))
+    return to_dict(from_dict(TrialConfig, BENCH_DEFAULTS, overrides))
 
 
 def run_spec(spec: TrialSpec, overrides: tuple[str, ...] = (), record_path: str | None = None) -> dict[str, Any]:
@@ -60,4 +64,4 @@ def run_spec(spec: TrialSpec, overrides: tuple[str, ...] = (), record_path: str 
     return run_trial(config, record=TrialRecorder(record_path, best_effort=True, recording_id=spec.key))
 
 
-__all__ = ["check_overrides", "run_spec", "trial_config"]
+__all__ = ["BENCH_DEFAULTS", "check_overrides", "run_spec", "trial_config"]

@@ -198,11 +198,12 @@ def prepare_scene(point_clouds: Sequence[ObjectPointCloud], meshes: Sequence[Tri
 
 def select_grasps(cands: GraspCandidates, score: np.ndarray, scene: SceneGeometry, gripper: GripperGeometry,
                   table_height: float, config: GraspPlannerConfig, stats: dict[str, Any] | None = None,
-                  ) -> list[list[Grasp]]:
+                  obstacles: np.ndarray | None = None) -> list[list[Grasp]]:
     """Collision-free, NMS-filtered best ``top_k`` grasps per object from scored candidates.
 
     Table check for all candidates at once, then per object the point check in score order (lazy,
-    ``batch_size`` at a time) against every object's points near the object, until ``top_k`` survive NMS.
+    ``batch_size`` at a time) against every object's points near the object (and the ``obstacles`` (M, 3)
+    points of known fixtures, world frame, m), until ``top_k`` survive NMS.
     """
     K = len(scene.object_ids)
     out: list[list[Grasp]] = [[] for _ in range(K)]
@@ -210,6 +211,8 @@ def select_grasps(cands: GraspCandidates, score: np.ndarray, scene: SceneGeometr
                                     config.table_clearance, config.check_approach_sweep)
     reach = gripper.reach_radius() + config.collision_margin
     all_pts = scene.all_points
+    if obstacles is not None and len(obstacles):
+        all_pts = np.concatenate([all_pts, np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)])
     n_checked = np.zeros(K, dtype=np.int64)
     n_hit = np.zeros(K, dtype=np.int64)
     for k in range(K):
@@ -289,7 +292,8 @@ class AntipodalGraspPlanner:
         self.last_stats: dict[str, Any] = {}
 
     def plan(self, point_clouds: Sequence[ObjectPointCloud], meshes: Sequence[TriMesh | None] | None = None,
-             table_height: float = 0.0) -> list[list[Grasp]]:
+             table_height: float = 0.0, obstacles: np.ndarray | None = None) -> list[list[Grasp]]:
+        """See :func:`plan_grasps`; ``obstacles`` (M, 3) are points of known fixtures the gripper must miss (m)."""
         cfg, g = self.config, self.gripper
         t0 = time.perf_counter()
         scene = prepare_scene(point_clouds, meshes)
@@ -307,7 +311,7 @@ class AntipodalGraspPlanner:
         score = score_candidates(cands, scene, g, cfg)
         t2 = time.perf_counter()
         stats: dict[str, Any] = {"pairs": [int(np.sum(pairs.obj == k)) for k in range(len(scene.object_ids))]}
-        out = select_grasps(cands, score, scene, g, table_height, cfg, stats)
+        out = select_grasps(cands, score, scene, g, table_height, cfg, stats, obstacles)
         t3 = time.perf_counter()
         stats["timings_s"] = {"contacts": t1 - t0, "enumerate_score": t2 - t1, "collision_nms": t3 - t2,
                               "total": t3 - t0}
@@ -323,6 +327,7 @@ def plan_grasps(
     gripper: GripperGeometry | None = None,
     config: GraspPlannerConfig | None = None,
     rng: np.random.Generator | int | None = None,
+    obstacles: np.ndarray | None = None,
 ) -> list[list[Grasp]]:
     """Plan collision-free antipodal grasps for every object at once (see the module docstring).
 
@@ -333,12 +338,14 @@ def plan_grasps(
         gripper: gripper geometry (default: Robotiq 2F-85).
         config: planner settings.
         rng: Generator or seed for the contact sampling (default: ``config.seed``).
+        obstacles: (M, 3) surface points of known static fixtures (a rack, a tray; world frame, m) that no gripper
+            box may contain; they get no grasps themselves.
 
     Returns:
         One list per input cloud (input order), best first, at most ``config.top_k`` each; empty when the
         object has no collision-free grasp.
     """
-    return AntipodalGraspPlanner(gripper, config, rng).plan(point_clouds, meshes, table_height)
+    return AntipodalGraspPlanner(gripper, config, rng).plan(point_clouds, meshes, table_height, obstacles)
 
 
 def grasps_to_graspnet(grasps: Sequence[Grasp]) -> np.ndarray:
