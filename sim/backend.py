@@ -250,7 +250,8 @@ class SimGripper:
         ids = sim.ids
         self._act = ids.gripper_actuator
         self._left, self._right = ids.left_pads, ids.right_pads
-        self._robot_geoms = frozenset(int(i) for i in sim.world.robot_geom_ids) | frozenset(ids.pads)
+        # contacts with anything but an object (table, robot) do not count as grip force
+        self._not_objects = frozenset(int(g) for g in np.nonzero(np.asarray(sim.world.geom_to_instance) == 0)[0])
         self.max_width: float = float(g.geometry.max_opening)
         cmds = np.array([c for c, _ in g.command_to_width])
         widths = np.array([w for _, w in g.command_to_width])
@@ -329,9 +330,9 @@ class SimGripper:
         return fmap.pad_force_at(self._setting, self.width() if width is None else width)
 
     def measured_force(self) -> float:
-        """Pad force (N) in the current state: each finger's summed normal contact force on non-robot geoms
-        (MuJoCo contact forces), averaged over the two fingers."""
-        return measured_pad_force(self._sim.model, self._sim.data, self._left, self._right, self._robot_geoms)
+        """Pad force (N) in the current state: each finger's summed normal contact force on the objects (MuJoCo
+        contact forces), averaged over the two fingers."""
+        return measured_pad_force(self._sim.model, self._sim.data, self._left, self._right, self._not_objects)
 
     def grip_report(self) -> dict[str, float]:
         """Requested / applied pad force (N), the actuator setting, the gap (m) and the measured pad force (N)."""

@@ -3,7 +3,9 @@
 A grid of TCP positions over the workspace box (``n_xy`` x ``n_xy`` in x, y at each of ``heights`` above the
 table: the grasp height and the lifted height of a pick) is solved with the pick's IK (mink, the robot-only
 model with the base at ``base_pose``), TCP approach axis pointing straight down and the closing axis along
-world x or y (either counts). A point is reached when the IK residual is within the IK tolerances. An arm
+world x or y (either counts). A point is reached when the IK residual is within the IK tolerances; a point
+farther from the first joint than the arm's total link length (an upper bound on its reach, for an all-hinge
+arm) is unreachable without solving. An arm
 that reaches too little is refused with a message naming ``base_pose``, the key that moves it. Frames: world
 (table frame), metres, radians. Results are cached per process (robot config, box, heights).
 """
@@ -15,6 +17,7 @@ import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import mujoco
 import numpy as np
 
 from torm.errors import SceneError
@@ -83,9 +86,24 @@ def grid_points(bounds_2x3: np.ndarray, table_height: float, heights=DEFAULT_HEI
     return np.array([[x, y, table_height + h] for h in heights for x in xs for y in ys])
 
 
+def max_reach(model: mujoco.MjModel, rcfg: RobotConfig) -> tuple[np.ndarray, float]:
+    """(first joint anchor (3,) m, upper bound on the TCP's distance from it m): the summed distances between
+    consecutive joint anchors and from the last one to the TCP, each fixed in a link; inf unless every arm joint
+    is a hinge."""
+    ids = rcfg.resolve(model)
+    d = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, d)
+    anchors = d.xanchor[ids.arm_joints]
+    if not all(int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) for j in ids.arm_joints):
+        return anchors[0], float("inf")
+    chain = np.vstack([anchors, d.site_xpos[ids.tcp_site][None]])
+    return anchors[0], float(np.sum(np.linalg.norm(np.diff(chain, axis=0), axis=1)))
+
+
 @functools.lru_cache(maxsize=16)
 def _cached(rcfg: RobotConfig, bounds: tuple, table_height: float, heights: tuple, n_xy: int) -> ReachReport:
     model = rcfg.robot_model()
+    origin, reach = max_reach(model, rcfg)
     ik = IKSolver(model, tuple(rcfg.arm.joints), rcfg.arm.tcp_site, IKConfig())  # the pick's IK settings
     g = rcfg.gripper.geometry
     rots = [_down_rotation(g.approach_axis, g.closing_axis, c) for c in ([0.0, 1.0, 0.0], [1.0, 0.0, 0.0])]
@@ -94,15 +112,16 @@ def _cached(rcfg: RobotConfig, bounds: tuple, table_height: float, heights: tupl
     reached = np.zeros(len(pts), bool)
     last_ok = home
     for i, p in enumerate(pts):
-        for R in rots:
+        if np.linalg.norm(p - origin) > reach + 1e-3:
+            continue
+        # from home in either closing direction, then from the last reached point's joints (a neighbour)
+        tries = [(home, R) for R in rots] + ([(last_ok, rots[0])] if last_ok is not home else [])
+        for seed, R in tries:
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R, p
-            for seed in (home, last_ok) if last_ok is not home else (home,):
-                res = ik.solve(T, seed, home)
-                if res.converged:
-                    reached[i], last_ok = True, res.q
-                    break
-            if reached[i]:
+            res = ik.solve(T, seed, home)
+            if res.converged:
+                reached[i], last_ok = True, res.q
                 break
     return ReachReport(rcfg.name, float(reached.mean()), pts, reached,
                        tuple(float(v) for v in rcfg.base_pose.position), bounds)
