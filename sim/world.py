@@ -229,6 +229,10 @@ def physics_options(spec: mujoco.MjSpec, cfg: WorldConfig | None = None, robot: 
     if spec.compiler.discardvisual:
         log.warning("the robot MJCF sets compiler discardvisual; turned off so the cameras see the objects")
         spec.compiler.discardvisual = False
+    if spec.compiler.settotalmass > 0:
+        log.warning("the robot MJCF sets compiler settotalmass, which would rescale the objects' masses too; "
+                    "ignored (the robot keeps its authored masses)")
+        spec.compiler.settotalmass = -1.0
 
 
 def _setup_scene(spec: mujoco.MjSpec, cfg: WorldConfig, robot: bool = False) -> None:
