@@ -1,20 +1,26 @@
 """The simulated backend: arm, gripper, clock, ground truth and camera rig on a :class:`sim.world.World`.
 
 Implements :class:`torm.backend.protocol.Backend` on MuJoCo so the harness runs the same pick code on the
-simulator and on the real robot. Units: m, rad, s, N; world = robot base frame, z up.
+simulator and on the real robot. Units: m, rad, s, N; world = the table frame, z up (the robot base at its
+``base_pose``; world = robot base frame when that is the identity).
 
 * :class:`SimArm` streams joint targets into the arm's position actuators: the commanded waypoints are
   linearly interpolated at ``control_dt`` while physics steps at the model timestep, then the arm settles.
   Every control tick checks the simulation's health (finite state, no new MuJoCo warnings, bounded contact
   forces and object speeds) and raises :class:`~torm.execution.errors.PhysicsError` otherwise.
-* :class:`SimGripper` maps an opening width to the 0..255 command with the robot config's measured map,
-  ramps the command at the requested speed, caps the pad force through the actuator's force range (20-235 N,
-  the 2F-85's range) and waits until the fingers stop; an object is detected when the fingers stall short of
-  the commanded width (like the Robotiq's ``gOBJ``).
+* :class:`SimGripper` maps an opening width to the command with the robot config's measured map (either
+  direction: 0 = open or 255 = open), ramps the command at the requested speed, commands the requested *pad
+  force* in newtons (clipped to 20-235 N, the 2F-85's range, and to what the gripper can produce) through the
+  gripper's measured force map (:mod:`sim.force_map`: pad force -> actuator force limit at the current width)
+  and waits until the fingers stop; an object is detected when the fingers stall short of the commanded width
+  (like the Robotiq's ``gOBJ``). :meth:`SimGripper.grip_report` gives the requested, applied and measured pad
+  force (MuJoCo contact forces) for the trial record.
 * The arm is exposed wrapped in :class:`~torm.backend.safety.SafeArm`: joint limits, speed limits and a TCP
   workspace box from the robot config and :class:`SimBackendConfig`.
 * :meth:`SimBackend.add_step_callback` registers ``fn(t)`` called every control tick (simulated time ``t``
   in s), e.g. to sample object and TCP positions for the success test.
+* At start-up the backend checks which share of the world's workspace box the arm reaches
+  (:mod:`sim.robot_reach`) and refuses an arm that reaches too little, naming ``base_pose``.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import mujoco
 import numpy as np
 
+from sim.force_map import measured_pad_force, pad_distance
 from torm.backend.protocol import ArmState, GripperState
 from torm.backend.safety import SafeArm, SafetyLimits
 from torm.errors import ConfigError, SceneError, UnknownNameError
@@ -60,6 +67,8 @@ class SimBackendConfig:
         object_detect_tolerance: gap beyond the commanded width at which an object counts as held (m).
         max_contact_force: largest contact constraint force before the simulation counts as exploded (N).
         max_object_speed: largest free-body linear speed before the simulation counts as exploded (m/s).
+        reach_check: check at start-up which share of the workspace the arm reaches (:mod:`sim.robot_reach`).
+        reach_min_share: refuse the robot (SceneError naming ``base_pose``) when it reaches less than this share.
     """
 
     control_dt: float = 0.002
@@ -75,6 +84,8 @@ class SimBackendConfig:
     object_detect_tolerance: float = 0.002
     max_contact_force: float = 5000.0
     max_object_speed: float = 10.0
+    reach_check: bool = True
+    reach_min_share: float = 0.75
 
     def __post_init__(self) -> None:
         for name in ("control_dt", "settle_time", "settle_speed", "gripper_timeout", "gripper_stall_speed",
@@ -89,6 +100,8 @@ class SimBackendConfig:
         if not 0 < lo < hi:
             raise ConfigError(f"SimBackendConfig.gripper_force_range {self.gripper_force_range} must be "
                               "0 < lo < hi (N)")
+        if not 0.0 <= self.reach_min_share <= 1.0:
+            raise ConfigError(f"SimBackendConfig.reach_min_share must be in [0, 1], got {self.reach_min_share}")
 
 
 def _site_pose(data: mujoco.MjData, site_id: int) -> np.ndarray:
@@ -103,6 +116,7 @@ class _Sim:
 
     def __init__(self, world: World, rcfg: RobotConfig, config: SimBackendConfig) -> None:
         self.world, self.rcfg, self.config = world, rcfg, config
+        self.ids = world.robot_ids if world.robot_ids is not None else rcfg.resolve(world.model)
         m = self.model = world.model
         self.data = world.data
         ratio = config.control_dt / m.opt.timestep
@@ -166,17 +180,17 @@ class SimArm:
 
     def __init__(self, sim: _Sim, robot_model: mujoco.MjModel) -> None:
         self._sim = sim
-        cfg = sim.rcfg.arm
-        m = sim.model
-        self.joint_names: tuple[str, ...] = tuple(cfg.joints)
-        self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in cfg.joints])
-        self._dadr = np.array([m.jnt_dofadr[m.joint(j).id] for j in cfg.joints])
-        self._act = np.array([m.actuator(a).id for a in cfg.actuators])
-        self._tcp = m.site(cfg.tcp_site).id
-        self._fk_model = robot_model
+        ids = sim.ids
+        self.joint_names: tuple[str, ...] = tuple(sim.rcfg.arm.joints)
+        self._qadr = ids.arm_qadr
+        self._dadr = ids.arm_dadr
+        self._act = ids.arm_actuators
+        self._tcp = ids.tcp_site
+        self._fk_model = robot_model  # robot alone, base at base_pose: same world frame as the scene
         self._fk_data = mujoco.MjData(robot_model)
-        self._fk_qadr = np.array([robot_model.jnt_qposadr[robot_model.joint(j).id] for j in cfg.joints])
-        self._fk_tcp = robot_model.site(cfg.tcp_site).id
+        fk = sim.rcfg.resolve(robot_model)
+        self._fk_qadr = fk.arm_qadr
+        self._fk_tcp = fk.tcp_site
 
     def state(self) -> ArmState:
         d = self._sim.data
@@ -240,41 +254,50 @@ class SimArm:
 
 
 class SimGripper:
-    """Simulated 2F-85-style gripper commanded by width (implements :class:`torm.backend.protocol.Gripper`)."""
+    """Simulated gripper commanded by width and pad force (implements :class:`torm.backend.protocol.Gripper`)."""
 
     def __init__(self, sim: _Sim) -> None:
         self._sim = sim
         g = sim.rcfg.gripper
         m = sim.model
         self._g = g
-        self._act = m.actuator(g.actuator).id
-        self._pads = [m.geom(n).id for n in g.pad_geoms]
-        self._tcp = m.site(sim.rcfg.arm.tcp_site).id
-        axes = "xyz"
-        self._close_axis = axes.index(g.geometry.closing_axis)
-        self._pad_thickness = float(g.geometry.pad_size[self._close_axis])
+        ids = sim.ids
+        self._act = ids.gripper_actuator
+        self._left, self._right = ids.left_pads, ids.right_pads
+        # contacts with anything but an object (table, robot) do not count as grip force
+        self._not_objects = frozenset(int(g) for g in np.nonzero(np.asarray(sim.world.geom_to_instance) == 0)[0])
         self.max_width: float = float(g.geometry.max_opening)
         cmds = np.array([c for c, _ in g.command_to_width])
         widths = np.array([w for _, w in g.command_to_width])
-        self._m_per_cmd = float((widths[0] - widths[-1]) / (cmds[-1] - cmds[0]))  # mean gap change per command
+        self._m_per_cmd = float(abs(widths[0] - widths[-1]) / (cmds[-1] - cmds[0]))  # mean gap change per command
+        self._cmd_lo, self._cmd_hi = sorted(g.command_range)
+        self._forcerange0 = m.actuator_forcerange[self._act].copy()
+        self._forcelimited0 = int(m.actuator_forcelimited[self._act])
         self._target_width = self.width()
         self._closing = False
-        self._forcerange0 = m.actuator_forcerange[self._act].copy()
-        self.force_n = float(g.force)
+        self.force_n = float(g.force) if g.force is not None else float(self._forcerange0[1])
+        self._requested_n = self.force_n
+        self._setting = float(self._forcerange0[1])
+        self._warned: set[str] = set()
+        if g.force_map is None:
+            log.warning("gripper of robot %s has no force_map: the actuator force limit is taken as the pad force "
+                        "(true only for a direct slide/tendon drive); measure one with "
+                        "python -m sim.robots.measure_gripper ROBOT --force", sim.rcfg.name)
 
     def reset(self) -> None:
         """Forget the last command (after a world reset) and restore the actuator's force range."""
-        self._sim.model.actuator_forcerange[self._act] = self._forcerange0
-        self.force_n = float(self._forcerange0[1])
+        m = self._sim.model
+        m.actuator_forcerange[self._act] = self._forcerange0
+        m.actuator_forcelimited[self._act] = self._forcelimited0
+        self.force_n = self._requested_n = float(self._forcerange0[1])
+        self._setting = float(self._forcerange0[1])
         self._target_width, self._closing = self.width(), False
 
     def width(self) -> float:
-        """Measured gap between the pads (m) along the closing axis."""
-        d = self._sim.data
-        mujoco.mj_kinematics(self._sim.model, d)
-        axis = d.site_xmat[self._tcp].reshape(3, 3)[:, self._close_axis]
-        sep = abs(float(np.dot(d.geom_xpos[self._pads[0]] - d.geom_xpos[self._pads[1]], axis)))
-        return max(0.0, sep - self._pad_thickness)
+        """Measured gap between the pads (m): the smallest distance between a left and a right pad geom."""
+        sim = self._sim
+        mujoco.mj_kinematics(sim.model, sim.data)
+        return max(0.0, pad_distance(sim.model, sim.data, self._left, self._right))
 
     def activate(self) -> None:
         """Nothing to do in simulation (the real 2F-85 needs an activation handshake)."""
@@ -288,26 +311,72 @@ class SimGripper:
         return GripperState(width=w, command=int(round(float(self._sim.data.ctrl[self._act]))),
                             object_detected=self._detected(w))
 
+    def _warn_once(self, key: str, msg: str, *args: Any) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            log.warning(msg, *args)
+
+    def _apply_force(self, width: float) -> None:
+        """Set the actuator force limit that gives ``self.force_n`` of pad force at pad gap ``width`` (m)."""
+        fmap = self._g.force_map
+        f = self.force_n
+        if fmap is None:
+            setting = f
+        else:
+            lo, hi = fmap.force_range(width)
+            if f > hi + 1e-6:
+                self._warn_once("hi", "requested pad force %.1f N exceeds the %.1f N the gripper's force map reaches "
+                                "at %.1f mm; using %.1f N", f, hi, width * 1e3, hi)
+            elif f < lo - 1e-6:
+                self._warn_once("lo", "requested pad force %.1f N is below the %.1f N the gripper's force map starts "
+                                "at (%.1f mm); using %.1f N", f, lo, width * 1e3, lo)
+            setting = fmap.setting_for(f, width)
+        self._setting = float(setting)
+        m = self._sim.model
+        m.actuator_forcelimited[self._act] = 1
+        m.actuator_forcerange[self._act] = (-self._setting, self._setting)
+
+    def applied_force(self, width: float | None = None) -> float:
+        """Pad force (N) the current setting gives at ``width`` (m, default: now), from the force map."""
+        fmap = self._g.force_map
+        if fmap is None:
+            return self._setting
+        return fmap.pad_force_at(self._setting, self.width() if width is None else width)
+
+    def measured_force(self) -> float:
+        """Pad force (N) in the current state: each finger's summed normal contact force on the objects (MuJoCo
+        contact forces), averaged over the two fingers."""
+        return measured_pad_force(self._sim.model, self._sim.data, self._left, self._right, self._not_objects)
+
+    def grip_report(self) -> dict[str, float]:
+        """Requested / applied pad force (N), the actuator setting, the gap (m) and the measured pad force (N)."""
+        w = self.width()
+        return {"requested_n": self._requested_n, "commanded_n": self.force_n, "applied_n": self.applied_force(w),
+                "setting": self._setting, "width_m": w, "measured_n": self.measured_force()}
+
     def move(self, width_m: float, speed_mps: float = 0.1, force_n: float = 100.0) -> GripperState:
-        """Go to pad gap ``width_m`` (m) at ``speed_mps`` (m/s, command ramp) with at most ``force_n`` (N) per pad."""
+        """Go to pad gap ``width_m`` (m) at ``speed_mps`` (m/s, command ramp) squeezing with ``force_n`` (N) of pad
+        force; ``force_n`` is clipped to ``gripper_force_range`` (20-235 N) and to the gripper's force map."""
         sim, g = self._sim, self._g
         if not (np.isfinite(width_m) and np.isfinite(speed_mps) and np.isfinite(force_n)) or speed_mps <= 0:
             raise ConfigError(f"gripper move needs a finite width (m), positive speed (m/s) and force (N); "
                               f"got {width_m}, {speed_mps}, {force_n}")
         width_m = float(np.clip(width_m, 0.0, self.max_width))
         lo, hi = sim.config.gripper_force_range
+        self._requested_n = float(force_n)
         self.force_n = float(np.clip(force_n, lo, hi))
-        sim.model.actuator_forcerange[self._act] = (-self.force_n, self.force_n)
-        target = float(np.clip(g.width_to_command(width_m), *g.command_range))
+        target = float(np.clip(g.width_to_command(width_m), self._cmd_lo, self._cmd_hi))
         w0 = self.width()
         self._closing = width_m < w0
         self._target_width = width_m
+        self._apply_force(w0)
         cmd = float(sim.data.ctrl[self._act])
         rate = speed_mps / self._m_per_cmd * sim.config.control_dt  # command units per control tick
         while abs(target - cmd) > 1e-9:
             cmd = cmd + float(np.clip(target - cmd, -rate, rate))
             sim.data.ctrl[self._act] = cmd
             sim.tick()
+            self._apply_force(self.width())
         # wait until the gap stops changing (reached the width, or stalled on an object)
         dt = sim.config.control_dt
         need = max(1, int(round(sim.config.gripper_stall_time / dt)))
@@ -315,6 +384,7 @@ class SimGripper:
         for _ in range(int(round(sim.config.gripper_timeout / dt))):
             sim.tick()
             w = self.width()
+            self._apply_force(w)
             still = still + 1 if abs(w - w_prev) / dt < sim.config.gripper_stall_speed else 0
             w_prev = w
             if still >= need:
@@ -374,7 +444,12 @@ class SimBackend:
     Attributes:
         arm: the simulated arm wrapped in :class:`SafeArm`; ``arm.inner`` is the raw :class:`SimArm`.
         gripper, clock, ground_truth: see the classes above.
-        robot_config: the robot's RobotConfig; ``robot_model`` a robot-only MjModel (for IK / FK).
+        robot_config: the robot's RobotConfig; ``robot_model`` a robot-only MjModel (for IK / FK), its base at
+            ``base_pose`` like in the world.
+        reach: the start-up :class:`sim.robot_reach.ReachReport` (None when ``config.reach_check`` is off).
+
+    Raises:
+        SceneError: when the arm reaches less than ``config.reach_min_share`` of the workspace (names ``base_pose``).
     """
 
     name = "sim"
@@ -388,7 +463,13 @@ class SimBackend:
         self.world = world
         self.config = config or SimBackendConfig()
         self.robot_config: RobotConfig = world.robot_config
-        self.robot_model = mujoco.MjModel.from_xml_path(str(self.robot_config.mjcf))
+        self.robot_model = self.robot_config.robot_model()
+        self.reach = None
+        if self.config.reach_check:
+            from sim.robot_reach import require_reach
+
+            self.reach = require_reach(self.robot_config, world.workspace_bounds, self.config.reach_min_share,
+                                       table_height=world.table_height)
         self._sim = _Sim(world, self.robot_config, self.config)
         self.limits = safety_limits(self.robot_config, self.config)
         self.arm = SafeArm(SimArm(self._sim, self.robot_model), self.limits)

@@ -1,28 +1,38 @@
-"""Robot configs: which MJCF, which joints/actuators/sites, limits and gripper geometry, from one YAML.
+"""Robot configs: which MJCF(s), which joints/actuators/sites, limits and gripper geometry, from one YAML.
 
 A robot folder ``sim/robots/<name>/`` holds a ``robot.yaml`` that names everything the harness needs
-from its MJCF, so a third-party arm or gripper is plugged in with only a YAML (pass its path to
-:func:`load_robot_config`). Units: m, rad, s, kg, N. Frames: world = robot base frame, z up; the
-gripper geometry is given in the TCP frame (origin at the pinch point midway between the pad
-centres, ``approach_axis`` pointing out of the flange towards the fingertips, ``closing_axis``
-along which the pads move).
+from its MJCF, so a third-party arm and gripper are plugged in with only a YAML (pass its path to
+:func:`load_robot_config`). The robot is described either by one pre-combined ``mjcf`` or by an arm file
+(``arm.mjcf``) and a gripper file (``gripper.mjcf``) that :mod:`sim.robot_compose` attaches at
+``gripper.attach_site``; ``base_pose`` places the arm base in the world. Units: m, rad, s, kg, N. Frames:
+world = the table frame (table top z = 0, z up); the arm base sits at ``base_pose`` in it (identity by
+default, where world = robot base frame); the gripper geometry is given in the TCP frame (origin at the
+pinch point midway between the pad centres, ``approach_axis`` pointing out of the flange towards the
+fingertips, ``closing_axis`` along which the pads move).
 
-Paths in the YAML (``mjcf``, ``scene``) are relative to the YAML's folder and are resolved to
-absolute paths on load.
+Paths in the YAML (``mjcf``, ``scene``, ``arm.mjcf``, ``gripper.mjcf``) are relative to the YAML's folder and
+are resolved to absolute paths on load. Names are those of the composed model: a gripper element is called
+``gripper.prefix`` + its name in the gripper file; actuators left out (or null) are found from the joints they
+drive. Every key, its
+meaning and default: ``sim/robots/README.md``.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import mujoco
 import numpy as np
 
+from sim.force_map import ForceMap
 from torm.config import from_dict, load_yaml
 from torm.errors import ConfigError, SceneError, UnknownNameError
+
+if TYPE_CHECKING:
+    from sim.robot_ids import RobotIds
 
 log = logging.getLogger(__name__)
 
@@ -33,28 +43,81 @@ Axis = Literal["x", "y", "z"]
 
 
 @dataclass(frozen=True)
+class BasePose:
+    """Where the arm base sits in the world (table frame, m / rad).
+
+    Attributes:
+        position: (x, y, z) of the arm's base frame origin in the world (m).
+        orientation: the base frame's orientation in the world: a unit quaternion ``[w, x, y, z]`` or
+            ``[roll, pitch, yaw]`` (rad, rotations about the fixed world x, y, z axes in that order).
+    """
+
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    orientation: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not np.all(np.isfinite(self.position)):
+            raise ConfigError(f"base_pose.position must be three finite numbers (m), got {list(self.position)}")
+        o = np.asarray(self.orientation, float)
+        if o.shape not in ((3,), (4,)) or not np.all(np.isfinite(o)):
+            raise ConfigError(f"base_pose.orientation must be a quaternion [w, x, y, z] or [roll, pitch, yaw] (rad), "
+                              f"got {list(self.orientation)}")
+        if o.shape == (4,) and np.linalg.norm(o) < 1e-9:
+            raise ConfigError("base_pose.orientation quaternion has zero length; identity is [1, 0, 0, 0]")
+
+    @property
+    def quat(self) -> np.ndarray:
+        """(4,) unit quaternion wxyz of the base in the world."""
+        o = np.asarray(self.orientation, float)
+        if o.shape == (4,):
+            return o / np.linalg.norm(o)
+        from scipy.spatial.transform import Rotation
+
+        x, y, z, w = Rotation.from_euler("xyz", o).as_quat()
+        return np.array([w, x, y, z])
+
+    @property
+    def T_world_base(self) -> np.ndarray:
+        """(4, 4) pose of the arm base frame in the world."""
+        T = np.eye(4)
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, self.quat)
+        T[:3, :3] = mat.reshape(3, 3)
+        T[:3, 3] = self.position
+        return T
+
+    @property
+    def is_identity(self) -> bool:
+        return bool(np.allclose(self.position, 0.0) and np.allclose(np.abs(self.quat[0]), 1.0))
+
+
+@dataclass(frozen=True)
 class ArmConfig:
-    """The arm: joint/actuator names (same order), TCP and flange sites, limits and the home pose.
+    """The arm: joint names, TCP and flange sites, limits and the home pose (+ its MJCF when separate).
 
     Attributes:
         joints: arm joint names in kinematic order (n).
-        actuators: position actuators driving ``joints``, same order (n); ctrl = joint target (rad).
         flange_site: site at the tool flange (gripper mounting face).
-        tcp_site: site at the tool centre point (pinch point of the gripper).
+        tcp_site: site at the tool centre point (pinch point of the gripper); usually in the gripper file.
         position_limits: (n, 2) [lower, upper] joint limits (rad), within the MJCF joint ranges.
         velocity_limits: (n,) joint speed limits (rad/s).
         acceleration_limits: (n,) joint acceleration limits (rad/s^2).
         home: (n,) "ready" joint configuration (rad).
+        mjcf: the arm's own MJCF (absolute after loading) when the gripper comes from ``gripper.mjcf``;
+            None with a pre-combined top-level ``mjcf``.
+        actuators: position actuators driving ``joints``, same order (ctrl = joint target, rad); None (or a
+            None entry) = the actuator whose transmission is that joint (for MJCFs with unnamed actuators).
     """
 
     joints: tuple[str, ...]
-    actuators: tuple[str, ...]
     flange_site: str
     tcp_site: str
     position_limits: tuple[tuple[float, float], ...]
     velocity_limits: tuple[float, ...]
     acceleration_limits: tuple[float, ...]
     home: tuple[float, ...]
+    mjcf: Path | None = None
+    actuators: tuple[str | None, ...] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.joints)
@@ -62,7 +125,10 @@ class ArmConfig:
             raise ConfigError("arm.joints is empty; list the arm's joint names in kinematic order")
         if len(set(self.joints)) != n:
             raise ConfigError(f"arm.joints has duplicates: {list(self.joints)}")
-        for name in ("actuators", "position_limits", "velocity_limits", "acceleration_limits", "home"):
+        names = ["position_limits", "velocity_limits", "acceleration_limits", "home"]
+        if self.actuators is not None:
+            names.append("actuators")
+        for name in names:
             if len(getattr(self, name)) != n:
                 raise ConfigError(f"arm.{name} has {len(getattr(self, name))} entries but arm.joints has {n}; "
                                   "give one per joint, in the same order")
@@ -77,6 +143,11 @@ class ArmConfig:
                    if not lo <= q <= hi]
         if outside:
             raise ConfigError(f"arm.home is outside arm.position_limits for joints {outside}")
+
+    @property
+    def actuator_names(self) -> tuple[str | None, ...]:
+        """(n,) the named actuators per joint; None where it is found from the joint."""
+        return tuple(self.actuators) if self.actuators is not None else (None,) * len(self.joints)
 
     @property
     def lower(self) -> np.ndarray:
@@ -100,7 +171,8 @@ class GripperGeometry:
 
     Sizes are full extents ``[x, y, z]`` of the TCP frame's axes. The pads sit at
     ``+-(opening / 2 + pad_size[closing] / 2)`` along ``closing_axis`` and centred on the TCP along
-    ``approach_axis``; each finger box lies directly behind its pad (further from the TCP along the
+    ``approach_axis`` (for a gripper whose pads move along the approach as they close: centred where
+    ``gripper.tcp_offset`` is 0); each finger box lies directly behind its pad (further from the TCP along the
     closing axis) with its centre at ``finger_center_approach`` along the approach axis; the palm box is
     centred on the approach axis at ``palm_center_approach`` (negative = towards the flange).
 
@@ -142,77 +214,166 @@ class GripperGeometry:
 
 @dataclass(frozen=True)
 class GripperConfig:
-    """The gripper: one actuator commanded in ``command_range`` and its measured command -> width map.
+    """The gripper: one actuator commanded in ``command_range``, its measured maps, and the planner's box model.
 
     Attributes:
-        actuator: actuator name; its ctrl is the command (e.g. 0 = open .. 255 = closed).
-        joints: finger joint names (for reading the state).
-        pad_geoms: the two pad collision geoms (contacts with them count as grasp contacts).
-        command_range: [open command, closed command].
-        command_to_width: pairs [command, gap between the pads (m)] measured in simulation with nothing
-            between the pads; commands increasing, widths non-increasing.
-        force: grip force limit (N) of the actuator (pad force).
+        joints: finger joint names (state read-out; an unnamed actuator is found from them).
+        pad_geoms: the pad collision geoms, ``[[left pads...], [right pads...]]`` (any number per finger), or
+            ``[left, right]`` for one pad per finger. Contacts with them count as grasp contacts.
+        command_range: ``[open command, closed command]``; either order (e.g. ``[255, 0]`` when 255 = open).
+        command_to_width: pairs ``[command, gap between the pads (m)]`` measured in simulation with nothing
+            between the pads; commands strictly increasing, the gap shrinking towards the closed command.
         geometry: box model for grasp planning.
+        mjcf: the gripper's own MJCF (absolute after loading), attached to the arm at ``attach_site``; None with
+            a pre-combined top-level ``mjcf``.
+        attach_site: arm site the gripper's root body is attached at (default ``arm.flange_site``).
+        prefix: prefix added to every gripper element's name on attaching (default ``gripper_``).
+        root_body: the gripper body to attach (default: the only body directly in the gripper's worldbody).
+        actuator: the actuator whose ctrl is the command; None = the actuator driving one of ``joints`` (directly
+            or through a tendon).
+        tcp_offset: pairs ``[gap (m), pad-centre position along the approach axis in the TCP frame (m)]``,
+            gaps strictly increasing, measured with nothing between the pads (``measure_gripper --tcp-offset``);
+            empty = the pads stay centred on the TCP at every width (a slide gripper).
+        force: pad force (N) the MJCF's own actuator force limit gives (as authored; informational).
+        force_map: measured pad force per actuator setting and width (``measure_gripper --force``); None = the
+            actuator force limit is taken as the pad force (true only for a direct slide/tendon drive).
     """
 
-    actuator: str
     joints: tuple[str, ...]
-    pad_geoms: tuple[str, str]
+    pad_geoms: tuple[str, str] | tuple[tuple[str, ...], tuple[str, ...]]
     command_range: tuple[float, float]
     command_to_width: tuple[tuple[float, float], ...]
-    force: float
     geometry: GripperGeometry
+    mjcf: Path | None = None
+    attach_site: str | None = None
+    prefix: str = "gripper_"
+    root_body: str | None = None
+    actuator: str | None = None
+    tcp_offset: tuple[tuple[float, float], ...] = ()
+    force: float | None = None
+    force_map: ForceMap | None = None
 
     def __post_init__(self) -> None:
-        lo, hi = self.command_range
-        if not lo < hi:
-            raise ConfigError(f"gripper.command_range {list(self.command_range)} must be [open, closed], open < closed")
+        pads = self.pad_geoms
+        if len(pads) != 2:
+            raise ConfigError("gripper.pad_geoms must be [left, right] or [[left pads...], [right pads...]]")
+        nested = tuple((p,) if isinstance(p, str) else tuple(p) for p in pads)
+        if not all(nested) or set(nested[0]) & set(nested[1]):
+            raise ConfigError(f"gripper.pad_geoms needs at least one pad per finger, none shared: {pads}")
+        object.__setattr__(self, "pad_geoms", nested)
+        o, c = self.command_range
+        if o == c:
+            raise ConfigError(f"gripper.command_range {list(self.command_range)} must be [open, closed] with "
+                              "open != closed (open > closed is fine, e.g. [255, 0])")
         if len(self.command_to_width) < 2:
             raise ConfigError("gripper.command_to_width needs at least two [command, width_m] pairs")
-        cmds = np.array([c for c, _ in self.command_to_width])
+        cmds = np.array([k for k, _ in self.command_to_width])
         widths = np.array([w for _, w in self.command_to_width])
         if np.any(np.diff(cmds) <= 0):
             raise ConfigError("gripper.command_to_width commands must be strictly increasing")
-        if np.any(np.diff(widths) > 0):
-            raise ConfigError("gripper.command_to_width widths must not increase as the command increases")
+        shrink = np.diff(widths) * np.sign(c - o)  # gap change per step towards the closed command
+        if np.any(shrink > 0):
+            raise ConfigError("gripper.command_to_width widths must not grow as the command moves from open "
+                              f"({o}) towards closed ({c})")
+        lo, hi = sorted(self.command_range)
         if cmds[0] < lo or cmds[-1] > hi:
             raise ConfigError(f"gripper.command_to_width commands must lie in command_range {list(self.command_range)}")
         if widths.min() < -1e-3 or widths.max() > self.geometry.max_opening + 1e-3:
             raise ConfigError("gripper.command_to_width widths must lie in "
                               f"[0, max_opening={self.geometry.max_opening}] m")
-        if not self.force > 0:
+        if self.tcp_offset:
+            tw = np.array([w for w, _ in self.tcp_offset])
+            if np.any(np.diff(tw) <= 0) or tw.min() < -1e-3 or tw.max() > self.geometry.max_opening + 1e-3:
+                raise ConfigError("gripper.tcp_offset gaps must be strictly increasing and lie in "
+                                  f"[0, max_opening={self.geometry.max_opening}] m")
+            if max(abs(off) for _, off in self.tcp_offset) > 0.2:
+                raise ConfigError("gripper.tcp_offset offsets must be under 0.2 m; they are metres, not mm")
+        if self.force is not None and not self.force > 0:
             raise ConfigError("gripper.force must be positive (N)")
+
+    @property
+    def left_pads(self) -> tuple[str, ...]:
+        return self.pad_geoms[0]  # type: ignore[return-value]
+
+    @property
+    def right_pads(self) -> tuple[str, ...]:
+        return self.pad_geoms[1]  # type: ignore[return-value]
+
+    @property
+    def open_command(self) -> float:
+        return float(self.command_range[0])
+
+    @property
+    def closed_command(self) -> float:
+        return float(self.command_range[1])
 
     def command_to_width_m(self, command: float) -> float:
         """Pad gap (m) the gripper settles at for ``command`` with nothing between the pads (interpolated)."""
-        cmds = [c for c, _ in self.command_to_width]
+        cmds = [k for k, _ in self.command_to_width]
         widths = [w for _, w in self.command_to_width]
         return float(np.interp(command, cmds, widths))
 
     def width_to_command(self, width_m: float) -> float:
         """Command whose free pad gap is ``width_m`` (m); clipped to the map's range."""
-        cmds = np.array([c for c, _ in self.command_to_width])[::-1]
-        widths = np.array([w for _, w in self.command_to_width])[::-1]  # increasing for np.interp
-        return float(np.interp(width_m, widths, cmds))
+        cmds = np.array([k for k, _ in self.command_to_width])
+        widths = np.array([w for _, w in self.command_to_width])
+        order = np.argsort(widths, kind="stable")  # np.interp needs increasing widths
+        return float(np.interp(width_m, widths[order], cmds[order]))
+
+    def tcp_offset_m(self, width_m: float) -> float:
+        """Pad-centre position along the approach axis in the TCP frame (m) at pad gap ``width_m`` (m); 0 without
+        a table."""
+        if not self.tcp_offset:
+            return 0.0
+        return float(np.interp(width_m, [w for w, _ in self.tcp_offset], [o for _, o in self.tcp_offset]))
 
 
 @dataclass(frozen=True)
 class RobotConfig:
-    """A simulated (or third-party) robot: MJCF files plus the names and numbers the harness needs.
+    """A simulated (or third-party) robot: MJCF file(s) plus the names and numbers the harness needs.
 
     Attributes:
         name: robot name (usually the folder name).
-        mjcf: the robot MJCF (absolute after loading); attach it into scenes.
-        scene: a standalone scene MJCF with floor and light (absolute after loading).
-        arm: arm names, limits, home pose.
-        gripper: gripper names, command map, geometry.
+        arm: arm names, limits, home pose (and ``arm.mjcf`` for a separate arm file).
+        gripper: gripper names, command maps, geometry (and ``gripper.mjcf`` for a separate gripper file).
+        mjcf: a pre-combined arm + gripper MJCF (absolute after loading); None when ``arm.mjcf`` and
+            ``gripper.mjcf`` are given.
+        scene: an optional standalone scene MJCF (floor, light) for viewing the robot; the harness never needs it.
+        base_pose: where the arm base sits in the world (default: the world origin).
+        gravcomp: True = gravity compensation on every robot body, False = none, None = as the MJCF says.
     """
 
     name: str
-    mjcf: Path
-    scene: Path
     arm: ArmConfig
     gripper: GripperConfig
+    mjcf: Path | None = None
+    scene: Path | None = None
+    base_pose: BasePose = field(default_factory=BasePose)
+    gravcomp: bool | None = None
+
+    def __post_init__(self) -> None:
+        separate = (self.arm.mjcf is not None, self.gripper.mjcf is not None)
+        if self.mjcf is not None and any(separate):
+            raise ConfigError(f"robot {self.name!r}: give either a pre-combined mjcf or arm.mjcf + gripper.mjcf, "
+                              "not both")
+        if self.mjcf is None and not all(separate):
+            missing = [k for k, v in zip(("arm.mjcf", "gripper.mjcf"), separate, strict=True) if not v]
+            raise ConfigError(f"robot {self.name!r}: no mjcf and no {' / '.join(missing)}; give a pre-combined mjcf "
+                              "or both arm.mjcf and gripper.mjcf")
+
+    @property
+    def composed(self) -> bool:
+        """Whether the robot is composed from a separate arm and gripper file."""
+        return self.mjcf is None
+
+    @property
+    def attach_site(self) -> str:
+        """The arm site the gripper is attached at."""
+        return self.gripper.attach_site or self.arm.flange_site
+
+    def files(self) -> tuple[Path, ...]:
+        """The MJCF files this robot is built from."""
+        return (self.mjcf,) if self.mjcf is not None else (self.arm.mjcf, self.gripper.mjcf)  # type: ignore[return-value]
 
     def command_to_width(self, command: float) -> float:
         """Pad gap (m) for a gripper command (see :meth:`GripperConfig.command_to_width_m`)."""
@@ -222,30 +383,29 @@ class RobotConfig:
         """Gripper command for a pad gap (m) (see :meth:`GripperConfig.width_to_command`)."""
         return self.gripper.width_to_command(width_m)
 
+    def robot_spec(self) -> mujoco.MjSpec:
+        """A fresh MjSpec of the robot alone, composed and placed at ``base_pose`` (see :mod:`sim.robot_compose`)."""
+        from sim.robot_compose import robot_spec
+
+        return robot_spec(self)
+
+    def robot_model(self) -> mujoco.MjModel:
+        """The compiled robot-only model (base at ``base_pose``): for IK, FK and plan-time collision checks."""
+        from sim.robot_compose import compile_spec
+
+        return compile_spec(self.robot_spec(), f"robot {self.name!r}")
+
+    def resolve(self, model: mujoco.MjModel) -> RobotIds:
+        """Ids of every joint/actuator/site/geom this config names in ``model`` (SceneError listing what is missing)."""
+        from sim.robot_ids import RobotIds
+
+        return RobotIds.resolve(model, self)
+
     def missing_in(self, model: mujoco.MjModel) -> list[str]:
         """Descriptions of everything this config names that ``model`` lacks or contradicts."""
-        problems: list[str] = []
-        checks = [(mujoco.mjtObj.mjOBJ_JOINT, "joint", n) for n in (*self.arm.joints, *self.gripper.joints)]
-        checks += [(mujoco.mjtObj.mjOBJ_ACTUATOR, "actuator", n) for n in (*self.arm.actuators, self.gripper.actuator)]
-        checks += [(mujoco.mjtObj.mjOBJ_SITE, "site", n) for n in (self.arm.flange_site, self.arm.tcp_site)]
-        checks += [(mujoco.mjtObj.mjOBJ_GEOM, "geom", n) for n in self.gripper.pad_geoms]
-        for obj, kind, name in checks:
-            if mujoco.mj_name2id(model, obj, name) < 0:
-                problems.append(f"{kind} {name!r}")
-        if problems:
-            return problems
-        for j, a in zip(self.arm.joints, self.arm.actuators, strict=True):
-            act = model.actuator(a)
-            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)
-            if act.trntype[0] != mujoco.mjtTrn.mjTRN_JOINT or act.trnid[0] != jid:
-                problems.append(f"actuator {a!r} does not drive joint {j!r} (arm.actuators must follow arm.joints)")
-        for j, (lo, hi) in zip(self.arm.joints, self.arm.position_limits, strict=True):
-            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)
-            if model.jnt_limited[jid]:
-                mlo, mhi = model.jnt_range[jid]
-                if lo < mlo - 1e-9 or hi > mhi + 1e-9:
-                    problems.append(f"joint {j!r} limits [{lo}, {hi}] exceed the MJCF range [{mlo}, {mhi}]")
-        return problems
+        from sim.robot_ids import problems_in
+
+        return problems_in(model, self)
 
     def validate_against(self, model: mujoco.MjModel) -> None:
         """Raise SceneError listing every joint/actuator/site/geom this config names that ``model`` lacks."""
@@ -275,27 +435,35 @@ def robot_yaml_path(name_or_path: str | Path) -> Path:
     raise UnknownNameError("robot", str(name_or_path), available_robots())
 
 
+_PATH_KEYS = ((), "mjcf"), ((), "scene"), (("arm",), "mjcf"), (("gripper",), "mjcf")
+
+
+def _resolve_paths(data: dict, folder: Path) -> None:
+    for parents, key in _PATH_KEYS:
+        d = data
+        for k in parents:
+            d = d.get(k) if isinstance(d, dict) else None
+        if isinstance(d, dict) and isinstance(d.get(key), str) and not Path(d[key]).is_absolute():
+            d[key] = str((folder / d[key]).resolve())
+
+
 def load_robot_config(name_or_path: str | Path, overrides: tuple[str, ...] | list[str] = (),
                       validate: bool = True) -> RobotConfig:
     """Load a :class:`RobotConfig` by robot folder name (e.g. ``"inovo_2f85"``) or YAML path.
 
     Unknown keys and missing fields raise ConfigError naming them; ``overrides`` are ``a.b=c`` strings.
-    With ``validate`` the MJCF is compiled and :meth:`RobotConfig.validate_against` is applied (SceneError).
+    With ``validate`` the robot is composed and compiled and :meth:`RobotConfig.validate_against` is applied
+    (SceneError).
     """
     path = robot_yaml_path(name_or_path)
     data = load_yaml(path)
-    for key in ("mjcf", "scene"):
-        if isinstance(data.get(key), str) and not Path(data[key]).is_absolute():
-            data[key] = str((path.parent / data[key]).resolve())
+    _resolve_paths(data, path.parent)
     cfg = from_dict(RobotConfig, data, overrides, where=str(path))
-    for key in ("mjcf", "scene"):
-        if not getattr(cfg, key).is_file():
-            raise ConfigError(f"{path}: {key} file {getattr(cfg, key)} does not exist; paths are relative to the YAML")
+    files = {"mjcf": cfg.mjcf, "scene": cfg.scene, "arm.mjcf": cfg.arm.mjcf, "gripper.mjcf": cfg.gripper.mjcf}
+    for key, f in files.items():
+        if f is not None and not f.is_file():
+            raise ConfigError(f"{path}: {key} file {f} does not exist; paths are relative to the YAML")
     if validate:
-        try:
-            model = mujoco.MjModel.from_xml_path(str(cfg.mjcf))
-        except ValueError as exc:
-            raise SceneError(f"{path}: MJCF {cfg.mjcf} does not compile: {exc}") from exc
-        cfg.validate_against(model)
+        cfg.validate_against(cfg.robot_model())
     log.debug("loaded robot config %s from %s", cfg.name, path)
     return cfg

@@ -1,8 +1,16 @@
-"""Build a MuJoCo world for a scenario: table, floor, lights, the robot at the origin, settled objects.
+"""Build a MuJoCo world for a scenario: table, floor, lights, the robot at its base pose, settled objects.
 
-Frames and units: world = robot base frame, z up, metres, radians, seconds, kilograms; the table top
-surface is z = 0. Geom groups (CONTEXT conventions): 0 environment visuals (the table geom also
-collides), 1 robot visuals, 2 glass object visuals, 3 collision geoms, 4 opaque object visuals.
+Frames and units: world = the table frame, z up, metres, radians, seconds, kilograms; the table top
+surface is z = 0. The robot's arm base sits at its robot.yaml ``base_pose`` (the world origin by default,
+where world = robot base frame). Geom groups (CONTEXT conventions): 0 environment visuals (the table geom
+also collides), 1 robot visuals, 2 glass object visuals, 3 collision geoms, 4 opaque object visuals. Robot
+geoms are moved into group 1 (or kept in 3 when they collide and sit there) whatever group their MJCF uses,
+so the capture rig, which hides groups 1 and 3, never sees the robot.
+
+The robot (:func:`sim.robot_compose.robot_spec`) is the base spec the scene is added to, so it keeps its
+own ``<compiler>`` (angle units: add world elements with quaternions, never euler or joint ranges) and its
+own ``<option>`` (integrator, timestep, solver...); the scene only adds the glass-holding contact settings
+(elliptic cone, impratio 10, multiccd) where the robot leaves MuJoCo's defaults.
 
 Objects are free bodies ``obj<k>_<name>`` (k = 1-based position in the scenario's object list = the
 instance id in masks). Each has one visual mesh geom ``obj<k>_<name>_visual`` (contype/conaffinity
@@ -19,7 +27,6 @@ MuJoCo warnings) and re-samples the layout when the check fails. The settled sta
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import logging
 import time
@@ -41,6 +48,7 @@ from torm.types import TriMesh
 if TYPE_CHECKING:
     from sim.realism import RealismRecord
     from sim.robot_config import RobotConfig
+    from sim.robot_ids import RobotIds
 
 log = logging.getLogger(__name__)
 
@@ -68,12 +76,13 @@ class WorldConfig:
     max_fixture_tilt_deg: float = 6.0  # the same for objects standing in a fixture (a tube leaning in its hole)
     max_penetration: float = 0.002  # deepest allowed contact penetration after settling (m)
     max_resamples: int = 20  # layouts to try before giving up
-    timestep: float = 0.002  # s
+    timestep: float | None = None  # s; None = the robot's own <option timestep> (0.002 s without a robot)
 
     def __post_init__(self) -> None:
-        for name in ("settle_time", "timestep"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"WorldConfig.{name} must be positive, got {getattr(self, name)}")
+        if not self.settle_time > 0:
+            raise ConfigError(f"WorldConfig.settle_time must be positive, got {self.settle_time}")
+        if self.timestep is not None and not self.timestep > 0:
+            raise ConfigError(f"WorldConfig.timestep must be positive or None (the robot's own), got {self.timestep}")
         for name in ("drop_height", "max_settle_shift", "max_settle_tilt_deg", "max_fixture_tilt_deg",
                      "max_penetration"):
             if getattr(self, name) < 0:
@@ -132,6 +141,8 @@ class World:
         workspace_bounds: (2, 3) reconstruction box [[x, y, z]_min, [x, y, z]_max] (m).
         geom_to_instance: (ngeom,) int32, geom id -> instance id k (0 for non-object geoms).
         robot: robot name or None; ``robot_config`` its RobotConfig (None without a robot).
+        robot_ids: the robot's joint/actuator/site/pad ids in ``model`` (None without a robot).
+        robot_geom_ids: (R,) ids of every robot geom (all in group 1 or 3).
         layout_attempts: layouts sampled until one settled cleanly (1 = first try).
         realism: the realism record applied to the physics (None: the world as built, i.e. ideal).
         fixture: the scenario's fixture and its pose (None without one).
@@ -147,6 +158,8 @@ class World:
     geom_to_instance: np.ndarray
     robot: str | None = None
     robot_config: RobotConfig | None = None
+    robot_ids: RobotIds | None = None
+    robot_geom_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     layout_attempts: int = 1
     realism: RealismRecord | None = None
     fixture: PlacedFixture | None = None
@@ -212,14 +225,33 @@ def _enable_multiccd(spec: mujoco.MjSpec) -> None:
         spec.option.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_MULTICCD)
 
 
-def _setup_scene(spec: mujoco.MjSpec, cfg: WorldConfig) -> None:
-    """Options, visuals, materials, floor, table and lights (m, rad)."""
-    spec.modelname = "torm_world"
-    spec.compiler.degree = False
-    spec.option.timestep = cfg.timestep
-    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    spec.option.impratio = 10.0
+def physics_options(spec: mujoco.MjSpec, cfg: WorldConfig | None = None, robot: bool = True) -> None:
+    """The timestep and the glass-holding contact settings, where the robot's own option leaves the default."""
+    cfg = cfg or WorldConfig()
+    default = mujoco.MjSpec().option
+    if cfg.timestep is not None or not robot:
+        spec.option.timestep = cfg.timestep or 0.002
+    if spec.option.cone == default.cone:
+        spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    if spec.option.impratio == default.impratio:
+        spec.option.impratio = 10.0
     _enable_multiccd(spec)
+    if spec.compiler.discardvisual:
+        log.warning("the robot MJCF sets compiler discardvisual; turned off so the cameras see the objects")
+        spec.compiler.discardvisual = False
+    if spec.compiler.settotalmass > 0:
+        log.warning("the robot MJCF sets compiler settotalmass, which would rescale the objects' masses too; "
+                    "ignored (the robot keeps its authored masses)")
+        spec.compiler.settotalmass = -1.0
+
+
+def _setup_scene(spec: mujoco.MjSpec, cfg: WorldConfig, robot: bool = False) -> None:
+    """Options, visuals, materials, floor, table and lights (m; orientations as quaternions / directions only,
+    since the spec's angle unit is the robot's)."""
+    spec.modelname = "torm_world"
+    if not robot:
+        spec.compiler.degree = False
+    physics_options(spec, cfg, robot)
     spec.visual.global_.offwidth = 1280
     spec.visual.global_.offheight = 720
     spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
@@ -312,39 +344,42 @@ def _add_object(spec: mujoco.MjSpec, k: int, a: ObjectAsset, pose: Placement, dr
                           meshname=f"{a.shape}_hull{i}", **common)
 
 
-def _new_spec(robot: str | Path | None):
-    """A fresh spec, holding the robot at the world origin (names unprefixed) when ``robot`` is given.
+def hide_robot_geoms(spec: mujoco.MjSpec) -> list:
+    """Put every geom of a robot spec in group 1 (robot visuals), except colliding geoms already in group 3.
 
-    The robot MJCF is loaded as the base spec rather than ``attach``-ed with an empty prefix: the result is
-    the same model (robot base at the origin, joint/actuator/site names exactly as in its robot.yaml) but
-    without MuJoCo's "empty prefix" warning on every build. Its <option> is reset to MuJoCo defaults so the
-    scene's physics settings do not depend on the robot file. Returns (spec, RobotConfig or None).
+    Returns the geom elements (their ``.id`` is the model geom id after compiling).
+    """
+    geoms = list(spec.geoms)
+    for g in geoms:
+        collides = bool(g.contype or g.conaffinity)
+        if not (collides and g.group == GROUP_COLLISION):
+            g.group = GROUP_ROBOT
+    return geoms
+
+
+def _new_spec(robot: str | Path | RobotConfig | None):
+    """A fresh spec holding the robot at its base pose (names unprefixed) when ``robot`` is given.
+
+    The composed robot spec is the base spec the scene is added to (not ``attach``-ed with an empty prefix), so
+    joint/actuator/site names stay exactly as in its robot.yaml and its compiler and options stay its own.
+    Returns (spec, RobotConfig or None, robot geom elements).
     """
     if robot is None:
-        return mujoco.MjSpec(), None
+        return mujoco.MjSpec(), None, []
     try:
-        from sim.robot_config import load_robot_config
+        from sim.robot_config import RobotConfig, load_robot_config
     except ImportError as exc:  # pragma: no cover - depends on the robot package being present
         raise SceneError(f"robot {robot!r} requested but sim.robot_config is unavailable ({exc}); "
                          "pass robot=None for an object-only scene") from exc
-    rcfg = load_robot_config(robot, validate=False)
-    try:
-        spec = mujoco.MjSpec.from_file(str(rcfg.mjcf))
-    except ValueError as exc:
-        raise SceneError(f"robot {robot!r}: cannot parse {rcfg.mjcf}: {exc}") from exc
-    fresh = mujoco.MjSpec().option
-    for attr in [a for a in dir(fresh) if not a.startswith("_")]:
-        with contextlib.suppress(AttributeError, TypeError):  # read-only attributes of newer MuJoCo versions
-            setattr(spec.option, attr, getattr(fresh, attr))
-    return spec, rcfg
+    rcfg = robot if isinstance(robot, RobotConfig) else load_robot_config(robot, validate=False)
+    spec = rcfg.robot_spec()
+    return spec, rcfg, hide_robot_geoms(spec)
 
 
-def _set_robot_home(model: mujoco.MjModel, data: mujoco.MjData, rcfg) -> None:
-    for j, a, q in zip(rcfg.arm.joints, rcfg.arm.actuators, rcfg.arm.home, strict=True):
-        data.qpos[model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]] = q
-        data.ctrl[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a)] = q
-    data.ctrl[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, rcfg.gripper.actuator)] = \
-        rcfg.gripper.command_range[0]
+def _set_robot_home(data: mujoco.MjData, rcfg: RobotConfig, ids: RobotIds) -> None:
+    data.qpos[ids.arm_qadr] = rcfg.arm.home_q
+    data.ctrl[ids.arm_actuators] = rcfg.arm.home_q
+    data.ctrl[ids.gripper_actuator] = rcfg.gripper.open_command
 
 
 def _warnings(data: mujoco.MjData) -> dict[str, int]:
@@ -395,7 +430,7 @@ def _compile(spec: mujoco.MjSpec, where: str) -> tuple[mujoco.MjModel, mujoco.Mj
 def build_world(
     scenario: str | Scenario,
     seed: int = 0,
-    robot: str | Path | None = "inovo_2f85",
+    robot: str | Path | RobotConfig | None = "inovo_2f85",
     *,
     config: WorldConfig | None = None,
     placement: PlacementConfig | None = None,
@@ -406,7 +441,7 @@ def build_world(
     Args:
         scenario: scenario name (see ``sim.scenes.scenario.list_scenarios()``) or a Scenario.
         seed: layout seed (x, y, yaw of every object); the same seed gives the same world.
-        robot: robot folder name / robot.yaml path attached at the world origin, or None for no robot.
+        robot: robot folder name / robot.yaml path / loaded RobotConfig (placed at its ``base_pose``), or None.
         config: build and settle parameters.
         placement: placement parameters (gap rules, workspace rectangle).
         realism: contact and mass values to apply before settling (:func:`sim.realism.apply_physics`);
@@ -425,22 +460,24 @@ def build_world(
     for attempt in range(1, attempts + 1):
         layout = place_scene(sc, rng, placement)
         poses = layout.objects
-        spec, rcfg = _new_spec(robot)
-        _setup_scene(spec, cfg)
+        spec, rcfg, robot_geoms = _new_spec(robot)
+        _setup_scene(spec, cfg, robot=rcfg is not None)
         fixture = _add_fixture(spec, sc.fixture, layout.fixture) if layout.fixture is not None else None
         _add_object_assets(spec, assets)
         for k, (a, p) in enumerate(zip(assets, poses, strict=True), start=1):
             _add_object(spec, k, a, p, cfg.drop_height)
         model, data = _compile(spec, f"scenario {sc.name!r}")
+        ids = None
         if rcfg is not None:
-            rcfg.validate_against(model)
-            _set_robot_home(model, data, rcfg)
+            ids = rcfg.resolve(model)
+            _set_robot_home(data, rcfg, ids)
         if realism is not None:
-            _apply_realism(model, assets, rcfg, realism)
+            _apply_realism(model, assets, ids, realism)
         objects, g2i = _object_records(model, sc, assets, poses)
         world = World(model=model, data=data, spec=spec, scenario=sc.name, scenario_spec=sc, seed=seed,
-                      objects=objects, geom_to_instance=g2i, robot=None if robot is None else str(robot),
-                      robot_config=rcfg, layout_attempts=attempt, realism=realism, fixture=fixture)
+                      objects=objects, geom_to_instance=g2i, robot=None if rcfg is None else _robot_label(robot),
+                      robot_config=rcfg, robot_ids=ids, robot_geom_ids=np.array([g.id for g in robot_geoms], int),
+                      layout_attempts=attempt, realism=realism, fixture=fixture)
         for o in objects:
             o._world = world
         mujoco.mj_forward(model, data)
@@ -459,15 +496,20 @@ def build_world(
                      f"last problems: {'; '.join(last)}")
 
 
-def _apply_realism(model: mujoco.MjModel, assets: list[ObjectAsset], rcfg, realism: RealismRecord) -> None:
+def _apply_realism(model: mujoco.MjModel, assets: list[ObjectAsset], ids: RobotIds | None,
+                   realism: RealismRecord) -> None:
     """Contact and mass values of ``realism`` into the compiled model (see :func:`sim.realism.apply_physics`)."""
     from sim.realism import apply_physics
 
     bodies = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"obj{k}_{a.name}") for k, a in
               enumerate(assets, start=1)]
     geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies and model.geom_group[g] == GROUP_COLLISION]
-    pads = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in rcfg.gripper.pad_geoms] if rcfg else []
+    pads = list(ids.pads) if ids is not None else []
     apply_physics(realism, model, bodies, geoms, pads, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table"))
+
+
+def _robot_label(robot: str | Path | RobotConfig) -> str:
+    return robot.name if hasattr(robot, "arm") else str(robot)
 
 
 def _object_records(

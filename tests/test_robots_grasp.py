@@ -142,7 +142,8 @@ def test_glass_cylinder_stays_in_gripper_through_25cm_lift() -> None:
     assert slip < 0.005, slip
     # The pads hold it (both pads in contact with the glass).
     glass = rig.model.geom("glass").id
-    pads = {rig.model.geom("robot/" + n).id for n in rig.cfg.gripper.pad_geoms}
+    g = rig.cfg.gripper
+    pads = {rig.model.geom("robot/" + n).id for n in g.left_pads + g.right_pads}
     touching = {c.geom1 if c.geom2 == glass else c.geom2 for c in rig.data.contact[: rig.data.ncon]
                 if glass in (c.geom1, c.geom2)}
     assert pads <= touching

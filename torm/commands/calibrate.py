@@ -46,10 +46,10 @@ def _flange_fk(robot: str):
     from sim.robot_config import load_robot_config
 
     rcfg = load_robot_config(robot)
-    model = mujoco.MjModel.from_xml_path(str(rcfg.mjcf))
+    model = rcfg.robot_model()  # composed like in the world, base at base_pose
     data = mujoco.MjData(model)
-    qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in rcfg.arm.joints])
-    sid = model.site(rcfg.arm.flange_site).id
+    ids = rcfg.resolve(model)
+    qadr, sid = ids.arm_qadr, ids.flange_site
 
     def fk(q):
         data.qpos[qadr] = q

@@ -262,9 +262,10 @@ class TormPickEnv(gym.Env):
         self._ik_factory = lambda: make_ik_solver(self._rcfg, cfg.ik)
         m = world.model
         arm = self._rcfg.arm
-        self._arm_act = np.array([m.actuator(a).id for a in arm.actuators])
-        self._grip_act = m.actuator(self._rcfg.gripper.actuator).id
-        self._pads = [m.geom(g).id for g in self._rcfg.gripper.pad_geoms]
+        ids = world.robot_ids  # actuators resolved from their joints when the MJCF leaves them unnamed
+        self._arm_act = np.asarray(ids.arm_actuators)
+        self._grip_act = int(ids.gripper_actuator)
+        self._fingers = (frozenset(ids.left_pads), frozenset(ids.right_pads))
         obj = world.objects[cfg.target_object - 1]
         self._obj_geoms = set(int(g) for g in obj.collision_geom_ids)
         self._obj_offset = obj.mesh.bounding_box.centroid.copy()  # body origin -> bbox centre (body frame, m)
@@ -416,14 +417,14 @@ class TormPickEnv(gym.Env):
         return T[:3, :3] @ self._obj_offset + T[:3, 3]
 
     def _pad_contacts(self) -> int:
-        """How many of the two pads touch the target object."""
+        """How many of the two fingers touch the target object with one of their pads."""
         d = self._world.data
         touching = set()
         for c in d.contact[: d.ncon]:
             g1, g2 = int(c.geom1), int(c.geom2)
-            for pad in self._pads:
-                if (g1 == pad and g2 in self._obj_geoms) or (g2 == pad and g1 in self._obj_geoms):
-                    touching.add(pad)
+            for k, pads in enumerate(self._fingers):
+                if (g1 in pads and g2 in self._obj_geoms) or (g2 in pads and g1 in self._obj_geoms):
+                    touching.add(k)
         return len(touching)
 
     def _success(self) -> tuple[bool, dict[str, Any]]:

@@ -17,6 +17,13 @@ sampled during lift and translation into a :class:`~torm.execution.success.PickT
 more than ``neighbour_tolerance``) before the fingers close is ``collision_on_approach``. On the real robot
 (no ground truth) success means the gripper still detects the object after lift and after translation,
 optionally confirmed by ``operator_confirm``.
+
+Tracking check. After every motion the measured TCP is compared with the forward kinematics of the last
+commanded joints; the error is recorded per motion in :attr:`PickResult.tcp_errors` (a warning above
+``PickConfig.tcp_tolerance``) and the TCP positions before and after the carrying phases go into the trace, so
+the success test tells an arm that fell short (``arm_tracking_error``) from an object that slipped. The grip
+force (requested, applied, measured pad force in N, when the gripper reports it) is recorded in
+:attr:`PickResult.grip_force`.
 """
 
 from __future__ import annotations
@@ -97,6 +104,11 @@ class PickResult:
         disturbed: other objects' displacement (m) between the start and the end of the pick (simulation only).
         neighbours_disturbed: whether any of them moved more than ``PickConfig.neighbour_tolerance``.
         gripper_width: pad gap after closing (m), None if the gripper never closed.
+        grip_force: the grip after closing: ``requested_n`` (pad force asked for, N) and, when the gripper reports
+            them (simulation), ``commanded_n`` (after clipping to the gripper's range), ``applied_n`` (from its
+            force map), ``setting`` (actuator force limit), ``width_m`` and ``measured_n`` (MuJoCo contact forces).
+        tcp_errors: one entry per motion: ``phase``, ``position_m`` / ``rotation_rad`` between the measured TCP and
+            the forward kinematics of the last commanded joints after the motion settled.
         message: a human-readable explanation for failures.
     """
 
@@ -113,6 +125,8 @@ class PickResult:
     disturbed: dict[int, float] = field(default_factory=dict)
     neighbours_disturbed: bool = False
     gripper_width: float | None = None
+    grip_force: dict[str, float] | None = None
+    tcp_errors: list[dict[str, Any]] = field(default_factory=list)
     message: str = ""
 
     @property
@@ -145,6 +159,9 @@ class PickResult:
             "disturbed_m": {str(k): v for k, v in self.disturbed.items()},
             "neighbours_disturbed": self.neighbours_disturbed,
             "gripper_width_m": self.gripper_width,
+            "grip_force": self.grip_force,
+            "tcp_errors": self.tcp_errors,
+            "tcp_error_max_m": max((e["position_m"] for e in self.tcp_errors), default=None),
             "message": self.message,
         }
 
@@ -183,24 +200,41 @@ class _Runner:
         self.b, self.cfg = backend, cfg
         self.vmax, self.amax, self.scale = _limits_of(backend.arm, cfg)
         self.phases: list[PhaseTiming] = []
+        self.tcp_errors: list[dict[str, Any]] = []
+        self._phase = ""
 
     def phase(self, name: str, fn: Callable[[], Any]) -> Any:
         t_sim, t_wall = self.b.clock.now(), time.perf_counter()
+        self._phase = name
         try:
             return fn()
         finally:
             self.phases.append(PhaseTiming(name, self.b.clock.now() - t_sim, time.perf_counter() - t_wall))
 
+    def _follow(self, t: np.ndarray, q: np.ndarray) -> None:
+        """Send the trajectory, then the tracking check: measured TCP vs FK of the last commanded joints."""
+        arm = self.b.arm
+        st = arm.follow_trajectory(t, q)
+        T_cmd = arm.forward_kinematics(np.asarray(q)[-1])
+        T = st.T_world_tcp
+        pos = float(np.linalg.norm(T[:3, 3] - T_cmd[:3, 3]))
+        cos = np.clip((np.trace(T_cmd[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+        self.tcp_errors.append({"phase": self._phase, "position_m": pos, "rotation_rad": float(np.arccos(cos)),
+                                "vector_m": (T[:3, 3] - T_cmd[:3, 3]).tolist()})
+        if pos > self.cfg.tcp_tolerance:
+            log.warning("TCP %.1f mm off its commanded pose after the %s motion (tolerance %.1f mm)", pos * 1e3,
+                        self._phase, self.cfg.tcp_tolerance * 1e3)
+
     def joint_move(self, q_goal: np.ndarray) -> None:
         q0 = self.b.arm.state().q
         t, q = chain_waypoints(q0, [q_goal], self.vmax, self.amax, self.scale, self.cfg.control_dt)
-        self.b.arm.follow_trajectory(t, q)
+        self._follow(t, q)
 
     def line(self, q_wxn: np.ndarray, length: float, speed: float) -> None:
         q_path = np.array(q_wxn, float)
         q_path[0] = self.b.arm.state().q  # start exactly where the arm is (the safety check starts there too)
         t, q = time_line(q_path, length, speed, self.vmax, self.amax, self.scale, self.cfg.control_dt)
-        self.b.arm.follow_trajectory(t, q)
+        self._follow(t, q)
 
 
 def _positions(backend: Backend) -> dict[int, np.ndarray] | None:
@@ -262,6 +296,7 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
                      translate_direction=plan.direction, unreachable=failed)
     run = _Runner(backend, cfg)
     res.phases = run.phases
+    res.tcp_errors = run.tcp_errors
     try:
         _run_pick(backend, plan, run, res, cfg, crit, tool, operator_confirm, frozenset(ignore_ids))
     except PhysicsError as exc:
@@ -321,6 +356,8 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
         return st
 
     res.gripper_width = float(run.phase("close", close).width)
+    report = getattr(grip, "grip_report", None)
+    res.grip_force = dict(report()) if callable(report) else {"requested_n": float(cfg.grip_force)}
 
     trace = PickTrace(rest=before[k]) if before is not None else None
     res.trace = trace
@@ -347,6 +384,12 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
     def obj() -> np.ndarray:
         return backend.ground_truth.object_poses()[k][:3, 3].copy()
 
+    def tcp() -> np.ndarray:
+        return np.asarray(arm.state().T_world_tcp[:3, 3], float).copy()
+
+    if trace is not None:
+        trace.tcp_rest = tcp()
+
     # Each carrying phase is judged right after it: from the true pose in simulation, from the gripper's object
     # detection on the real robot.
     stages = (("lift", "lift_end", Outcome.SLIPPED, "did not stay in the hand during the lift"),
@@ -356,6 +399,7 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
             transport(phase, getattr(trace, phase) if trace is not None else None)
             if trace is not None:
                 setattr(trace, end_field, obj())
+                setattr(trace, f"tcp_{end_field}", tcp())
                 j = judge_pick(trace, crit)
                 if j.outcome is failure:
                     return _abort(backend, run, res, cfg, j, f"the object {why}", disturbance, k)

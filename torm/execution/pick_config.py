@@ -25,7 +25,8 @@ class PickConfig:
         translate_distance: horizontal move while lifted (m).
         place_clearance: the object is released this far above where it was grasped (m).
         speed_scale: fraction of the arm's velocity/acceleration limits used, (0, 1] (capped by the safety layer).
-        grip_force: pad force when closing (N).
+        grip_force: pad force when closing (N): the normal force each finger's pads press on the object; the
+            simulated gripper turns it into an actuator setting through its measured force map, clipped to 20-235 N.
         grip_speed: finger speed (m/s).
         open_margin: opening beyond the grasp width before the approach (m), capped at the gripper's stroke.
         close_width: commanded width when closing (m); 0 = close until the object stops the fingers.
@@ -44,6 +45,8 @@ class PickConfig:
             parallel gripper), preferring the orientation closer to the current wrist.
         check_robot_collisions: reject configurations where the arm hits itself or the table (plan time).
         table_height: z of the table top for that check (m); world convention 0.
+        tcp_tolerance: TCP position error after a motion above which a warning is logged (m); every error is
+            recorded in the pick result either way.
     """
 
     pre_grasp_distance: float = 0.10
@@ -71,11 +74,12 @@ class PickConfig:
     try_flipped: bool = True
     check_robot_collisions: bool = True
     table_height: float = 0.0
+    tcp_tolerance: float = 0.005
 
     def __post_init__(self) -> None:
         for name in ("pre_grasp_distance", "approach_speed", "transport_speed", "lift_height", "translate_distance",
                      "grip_force", "grip_speed", "control_dt", "line_step", "max_joint_step", "approach_tolerance",
-                     "neighbour_tolerance", "sample_dt"):
+                     "neighbour_tolerance", "sample_dt", "tcp_tolerance"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"PickConfig.{name} must be positive, got {getattr(self, name)}")
         for name in ("lift_margin", "place_clearance", "open_margin", "close_width", "settle_after_close",

@@ -1,13 +1,15 @@
 """Planning a pick: grasp -> TCP frame, the translation direction, IK along straight lines, and line timing.
 
 Backend-agnostic (only an :class:`~torm.execution.ik.IKSolver`, a :class:`ToolFrame` and optionally a
-:class:`~torm.execution.robot_collision.RobotCollisionChecker`). Units: m, rad, s; world = robot base frame, z up.
+:class:`~torm.execution.robot_collision.RobotCollisionChecker`). Units: m, rad, s; world frame (the table frame,
+z up; the IK model holds the robot at its base pose in it).
 
 Frames. A :class:`~torm.types.Grasp` has x = approach (into the object), y = closing axis, origin midway
 between the pads with the fingertips at ``x = grasp.depth``. The robot's TCP frame (from its robot config)
-has its own approach/closing axes and the fingertips at ``tip_approach`` along its approach axis, so
-``T_world_tcp`` puts the TCP approach axis on grasp x, the closing axis on grasp y and the TCP origin at
-``grasp origin + (grasp.depth - tip_approach) * x``.
+has its own approach/closing axes and the fingertips at ``tip_approach + tcp_offset(width)`` along its approach
+axis (the offset is 0 unless the pads move along the approach as they close), so ``T_world_tcp`` puts the TCP
+approach axis on grasp x, the closing axis on grasp y and the TCP origin at
+``grasp origin + (grasp.depth - tip_approach - tcp_offset(grasp.width)) * x``.
 
 Motions. Every segment of a pick is a straight Cartesian line (position interpolated linearly, orientation
 slerped) sampled every ``line_step`` m as IK waypoints, each residual checked (:class:`UnreachableError`
@@ -47,14 +49,19 @@ class ToolFrame:
     Attributes:
         approach_axis: TCP axis from the palm towards the fingertips ("x", "y" or "z").
         closing_axis: TCP axis along which the pads move.
-        tip_approach: fingertip position along the approach axis in the TCP frame (m).
+        tip_approach: fingertip position along the approach axis in the TCP frame (m), with the pads where
+            ``tcp_offset`` is 0.
         max_opening: the gripper's stroke (m).
+        tcp_offset: pairs (pad gap m, pad-centre position along the approach axis in the TCP frame m), gaps
+            increasing: where the pads (and fingertips) sit along the approach at each opening, for grippers whose
+            pads move along the approach as they close; empty = always 0.
     """
 
     approach_axis: str = "z"
     closing_axis: str = "y"
     tip_approach: float = 0.01875
     max_opening: float = 0.085
+    tcp_offset: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.approach_axis not in _AXES or self.closing_axis not in _AXES or self.approach_axis == self.closing_axis:
@@ -62,21 +69,31 @@ class ToolFrame:
                               f"{self.closing_axis!r}")
         if not self.max_opening > 0:
             raise ConfigError("ToolFrame.max_opening must be positive (m)")
+        gaps = [w for w, _ in self.tcp_offset]
+        if any(b <= a for a, b in zip(gaps[:-1], gaps[1:], strict=True)):
+            raise ConfigError("ToolFrame.tcp_offset gaps must be strictly increasing (m)")
+
+    def offset_at(self, width: float) -> float:
+        """Pad-centre position along the approach axis (m) at pad gap ``width`` (m), interpolated; 0 without a table."""
+        if not self.tcp_offset:
+            return 0.0
+        return float(np.interp(width, [w for w, _ in self.tcp_offset], [o for _, o in self.tcp_offset]))
 
     @classmethod
     def from_robot_config(cls, robot_config: Any) -> ToolFrame:
-        """From a ``sim.robot_config.RobotConfig`` (duck-typed: ``robot_config.gripper.geometry``)."""
+        """From a ``sim.robot_config.RobotConfig`` (duck-typed: ``gripper.geometry``, optional
+        ``gripper.tcp_offset``)."""
         g = robot_config.gripper.geometry
-        return cls(str(g.approach_axis), str(g.closing_axis), float(g.tip_approach), float(g.max_opening))
+        table = tuple((float(w), float(o)) for w, o in getattr(robot_config.gripper, "tcp_offset", ()) or ())
+        return cls(str(g.approach_axis), str(g.closing_axis), float(g.tip_approach), float(g.max_opening), table)
 
 
 def make_ik_solver(robot_config: Any, config: IKConfig | None = None) -> IKSolver:
-    """An :class:`IKSolver` on the robot-only model of a robot config (duck-typed: ``mjcf``, ``arm.joints``,
-    ``arm.tcp_site``)."""
-    import mujoco
+    """An :class:`IKSolver` on the robot-only model of a robot config (duck-typed: ``robot_spec()`` or ``mjcf``,
+    ``arm.joints``, ``arm.tcp_site``); the base sits at the config's base pose, so targets are world poses."""
+    from torm.execution.robot_model import robot_model_of
 
-    model = mujoco.MjModel.from_xml_path(str(robot_config.mjcf))
-    return IKSolver(model, tuple(robot_config.arm.joints), robot_config.arm.tcp_site, config)
+    return IKSolver(robot_model_of(robot_config), tuple(robot_config.arm.joints), robot_config.arm.tcp_site, config)
 
 
 def grasp_to_tcp(grasp: Grasp, tool: ToolFrame, flip: bool = False) -> np.ndarray:
@@ -90,7 +107,8 @@ def grasp_to_tcp(grasp: Grasp, tool: ToolFrame, flip: bool = False) -> np.ndarra
     cols[other] = np.cross(cols[_AXES[(i + 1) % 3]], cols[_AXES[(i + 2) % 3]])
     T = np.eye(4)
     T[:3, :3] = np.column_stack([cols[a] for a in _AXES])
-    T[:3, 3] = Tg[:3, 3] + (grasp.depth - tool.tip_approach) * gx
+    # the fingertips sit at tip_approach + offset(width) along the TCP approach axis when the pads are at the grasp
+    T[:3, 3] = Tg[:3, 3] + (grasp.depth - tool.tip_approach - tool.offset_at(grasp.width)) * gx
     return T
 
 

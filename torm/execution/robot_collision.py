@@ -2,8 +2,9 @@
 
 IK knows only joint limits, so it happily returns a configuration that folds the wrist into the forearm or
 drives a link into the table; position control then jams the arm there. :class:`RobotCollisionChecker`
-rejects such configurations before anything moves. It uses the robot's own MJCF plus a table plane at
-``table_height`` (world = robot base frame, z up, m); the finger joints stay at their initial (open) values.
+rejects such configurations before anything moves. It uses the robot-only model (its base at the robot config's
+base pose, :mod:`torm.execution.robot_model`) plus a table plane at ``table_height`` (world frame, z up, m); the
+finger joints stay at their initial (open) values.
 Objects are not included: avoiding them is the grasp planner's job, and hitting them is judged by the pick.
 """
 
@@ -25,15 +26,15 @@ class RobotCollisionChecker:
     """Finds penetrating contacts of the robot with itself or the table for arm joints ``q`` (n,) rad.
 
     Args:
-        mjcf: the robot MJCF (base at the world origin).
+        mjcf: the robot MJCF file (base at the world origin) or a robot-only MjSpec (consumed: the table is added).
         joint_names: the arm joints, in the order of ``q``.
         table_height: z of the table top (m); None for no table.
         tolerance: penetration depth (m) below which a contact is ignored (touching is fine).
     """
 
-    def __init__(self, mjcf: str | Path, joint_names: tuple[str, ...], table_height: float | None = 0.0,
-                 tolerance: float = 1e-3) -> None:
-        spec = mujoco.MjSpec.from_file(str(mjcf))
+    def __init__(self, mjcf: str | Path | mujoco.MjSpec, joint_names: tuple[str, ...],
+                 table_height: float | None = 0.0, tolerance: float = 1e-3) -> None:
+        spec = mjcf if isinstance(mjcf, mujoco.MjSpec) else mujoco.MjSpec.from_file(str(mjcf))
         if table_height is not None:
             spec.worldbody.add_geom(name=TABLE_GEOM, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
                                     pos=[0, 0, float(table_height)], contype=1, conaffinity=1)
@@ -41,15 +42,17 @@ class RobotCollisionChecker:
         self.data = mujoco.MjData(self.model)
         missing = [j for j in joint_names if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, j) < 0]
         if missing:
-            raise ConfigError(f"robot MJCF {mjcf} has no joint(s) {missing}")
+            raise ConfigError(f"robot model has no joint(s) {missing}")
         self._qadr = np.array([self.model.jnt_qposadr[self.model.joint(j).id] for j in joint_names])
         self.tolerance = float(tolerance)
 
     @classmethod
     def from_robot_config(cls, robot_config: Any, table_height: float | None = 0.0,
                           tolerance: float = 1e-3) -> RobotCollisionChecker:
-        """From a ``sim.robot_config.RobotConfig`` (duck-typed: ``mjcf``, ``arm.joints``)."""
-        return cls(robot_config.mjcf, tuple(robot_config.arm.joints), table_height, tolerance)
+        """From a ``sim.robot_config.RobotConfig`` (duck-typed: ``robot_spec()`` or ``mjcf``, ``arm.joints``)."""
+        from torm.execution.robot_model import robot_spec_of
+
+        return cls(robot_spec_of(robot_config), tuple(robot_config.arm.joints), table_height, tolerance)
 
     def _body(self, geom: int) -> str:
         if self.model.geom(geom).name == TABLE_GEOM:

@@ -4,6 +4,12 @@ Success (TORM, Sec. IV-E): the object is lifted 25 cm above the table, translate
 lowered and released back onto the table. In simulation it is judged from the object's true pose,
 sampled during the motion; on the real robot from the gripper's object detection (plus an optional
 operator confirmation). Tolerances are stated in :class:`SuccessCriteria`.
+
+Arm tracking vs slip. The heights and distances are the object's, but an arm that does not reach its commanded
+pose (sag without gravity compensation, a weak servo, injected tracking error) carries a firmly held object short
+of the targets too. So the trace also holds the TCP's own positions: when a stage falls short while the object
+stayed with the TCP (drift within the slip tolerance) and the TCP itself fell short by the same measure, the
+outcome is ``arm_tracking_error``, never ``slipped_during_lift`` / ``dropped_during_translation``.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ class Outcome(str, Enum):
     DROPPED = "dropped_during_translation"
     NOT_RELEASED = "not_released"  # the object did not end up back on the table
     PHYSICS = "physics_error"  # NaN / exploding contacts: the trial aborts
+    TRACKING = "arm_tracking_error"  # the object stayed in the hand but the arm fell short of the commanded motion
     OTHER = "other"
 
 
@@ -59,7 +66,9 @@ class PickTrace:
 
     ``rest`` is the object's position before the pick; ``lift`` and ``translate`` hold (T, 3) object
     positions relative to the TCP, expressed in the world frame, sampled during those phases;
-    ``lift_end``/``translate_end``/``final`` are object positions at the end of those phases.
+    ``lift_end``/``translate_end``/``final`` are object positions at the end of those phases;
+    ``tcp_rest``/``tcp_lift_end``/``tcp_translate_end`` the TCP's measured positions before the lift and at the end
+    of the lift and the translation (None when not recorded: then no stage counts as a tracking error).
     """
 
     rest: np.ndarray
@@ -68,6 +77,9 @@ class PickTrace:
     lift_end: np.ndarray | None = None
     translate_end: np.ndarray | None = None
     final: np.ndarray | None = None
+    tcp_rest: np.ndarray | None = None
+    tcp_lift_end: np.ndarray | None = None
+    tcp_translate_end: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -80,6 +92,8 @@ class Judgement:
     slip_lift: float
     slip_translate: float
     final_height_change: float
+    tcp_lift: float | None = None
+    tcp_translation: float | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -89,6 +103,8 @@ class Judgement:
             "slip_lift_m": self.slip_lift,
             "slip_translate_m": self.slip_translate,
             "final_height_change_m": self.final_height_change,
+            "tcp_lift_m": self.tcp_lift,
+            "tcp_translation_m": self.tcp_translation,
         }
 
 
@@ -107,17 +123,25 @@ def judge_pick(trace: PickTrace, criteria: SuccessCriteria = SuccessCriteria()) 
     moved = float(np.linalg.norm((trace.translate_end - rest)[:2])) if trace.translate_end is not None else 0.0
     slip_l, slip_t = _drift(trace.lift), _drift(trace.translate)
     final_dz = float(trace.final[2] - rest[2]) if trace.final is not None else float("nan")
+    t0, t1, t2 = trace.tcp_rest, trace.tcp_lift_end, trace.tcp_translate_end
+    tcp_lift = float(t1[2] - t0[2]) if t0 is not None and t1 is not None else None
+    tcp_up = float(t2[2] - t0[2]) if t0 is not None and t2 is not None else None
+    tcp_moved = float(np.linalg.norm((t2 - t1)[:2])) if t1 is not None and t2 is not None else None
 
     def verdict(o: Outcome) -> Judgement:
-        return Judgement(o, lift, moved, slip_l, slip_t, final_dz)
+        return Judgement(o, lift, moved, slip_l, slip_t, final_dz, tcp_lift, tcp_moved)
 
     if lift < c.lift_height - c.height_tolerance or slip_l > c.slip_tolerance:
-        return verdict(Outcome.SLIPPED)
+        arm_short = tcp_lift is not None and tcp_lift < c.lift_height - c.height_tolerance
+        return verdict(Outcome.TRACKING if slip_l <= c.slip_tolerance and arm_short else Outcome.SLIPPED)
     if trace.translate_end is None:
         return verdict(Outcome.DROPPED)
     still_up = float(trace.translate_end[2] - rest[2]) >= c.lift_height - c.height_tolerance
     if slip_t > c.slip_tolerance or not still_up or moved < c.translation - c.slip_tolerance:
-        return verdict(Outcome.DROPPED)
+        arm_short = ((tcp_up is not None and not still_up and tcp_up < c.lift_height - c.height_tolerance)
+                     or (tcp_moved is not None and moved < c.translation - c.slip_tolerance
+                         and tcp_moved < c.translation - c.slip_tolerance))
+        return verdict(Outcome.TRACKING if slip_t <= c.slip_tolerance and arm_short else Outcome.DROPPED)
     if not np.isfinite(final_dz) or abs(final_dz) > c.height_tolerance:
         return verdict(Outcome.NOT_RELEASED)
     return verdict(Outcome.SUCCESS)

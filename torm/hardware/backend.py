@@ -177,9 +177,9 @@ class RealBackend:
     def robot_model(self):
         """A robot-only MuJoCo model (for IK / FK), like ``SimBackend.robot_model``."""
         if getattr(self, "_robot_model", None) is None:
-            import mujoco
+            from torm.execution.robot_model import robot_model_of
 
-            self._robot_model = mujoco.MjModel.from_xml_path(str(self.robot_config.mjcf))
+            self._robot_model = robot_model_of(self.robot_config)
         return self._robot_model
 
     def _ik_solver(self):
@@ -304,7 +304,9 @@ class RealBackend:
 def make_inovo_arm(robot_config: Any, hw: HardwareConfig, command_log: CommandLog) -> InovoArm:
     """Connect to the Inovo arm described by ``hw`` with FK on the robot config's MJCF."""
     a = robot_config.arm
-    kin = MujocoKinematics(robot_config.mjcf, tuple(a.joints), a.tcp_site, a.flange_site)
+    from torm.execution.robot_model import robot_model_of
+
+    kin = MujocoKinematics(robot_model_of(robot_config), tuple(a.joints), a.tcp_site, a.flange_site)
     return InovoArm(hw.host, hw.port, tuple(a.joints), kin, armed=hw.armed, dry_run=hw.dry_run,
                     watchdog_s=hw.watchdog_s, connect_timeout_s=hw.connect_timeout_s,
                     result_timeout_s=hw.result_timeout_s, command_log=command_log,

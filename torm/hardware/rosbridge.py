@@ -82,8 +82,9 @@ def _pose_to_T(pose: dict[str, Any]) -> np.ndarray:
 class MujocoKinematics:
     """Forward kinematics of the robot MJCF: TCP and flange site poses (4, 4) for arm joints (n,) rad."""
 
-    def __init__(self, mjcf: str | Path, joint_names: tuple[str, ...], tcp_site: str, flange_site: str) -> None:
-        self.model = mujoco.MjModel.from_xml_path(str(mjcf))
+    def __init__(self, mjcf: str | Path | mujoco.MjModel, joint_names: tuple[str, ...], tcp_site: str,
+                 flange_site: str) -> None:
+        self.model = mjcf if isinstance(mjcf, mujoco.MjModel) else mujoco.MjModel.from_xml_path(str(mjcf))
         self.data = mujoco.MjData(self.model)
         self._qadr = np.array([self.model.jnt_qposadr[self.model.joint(j).id] for j in joint_names])
         self._tcp = self.model.site(tcp_site).id
