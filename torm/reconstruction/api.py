@@ -11,7 +11,8 @@ Two modes:
   segmenter-like corrupted masks: volume IoU 0.776 -> 0.815, Chamfer 3.1 -> 2.6 mm. Hence the
   default of 100 steps; set ``refine_iters=0`` for the plain hull (~0.7 s).
 - ``"paper"``: DMTet-Multi as in the paper (MLP f(v), oversized sphere start, envelope loss with the
-  alpha schedule); the :class:`DMTetConfig` in ``config.dmtet`` is used as given except ``start="sphere"``.
+  alpha schedule, 5000 steps, no rescue: a mesh that vanishes raises ReconstructionError); the
+  :class:`DMTetConfig` in ``config.dmtet`` is used as given except ``start="sphere"``.
 
 Then marching tets, the split into connected components (one per object), small components dropped,
 and the same number of surface samples per object.
@@ -346,12 +347,21 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
         mesh, history = res.mesh, res.history
         timings["dmtet"] = res.timings["total_s"]
         info["dmtet_ms_per_step"] = res.timings["ms_per_step"]
+        info["dmtet_timings"] = res.timings
+        bv = history["band_verts"]
+        info["dmtet_band"] = {"full_passes": int(history["full_passes"][0]),
+                              "band_misses": int(history["band_misses"][0]),
+                              "band_verts_mean": float(np.mean(bv)) if bv else None}
     info["empty_steps"] = int(history.get("empty_steps", [0])[0]) if history else 0
+    info["rescued_steps"] = int(history.get("rescued_steps", [0])[0]) if history else 0
+    info["collapsed_at"] = int(history.get("collapsed_at", [-1])[0]) if history else -1
 
     if mesh.is_empty:
+        vanished = (f" (DMTet-Multi's mesh vanished at step {info['collapsed_at']}; DMTetConfig.rescue re-seeds it "
+                    "from the silhouettes, which the paper does not)") if info["collapsed_at"] >= 0 else ""
         raise ReconstructionError(
-            "no object reconstructed: the final mesh is empty; check masks/cameras (poses, intrinsics, mask ids) "
-            "and the reconstruction bounds"
+            f"no object reconstructed: the final mesh is empty{vanished}; check masks/cameras (poses, intrinsics, "
+            "mask ids) and the reconstruction bounds"
         )
     t = time.perf_counter()
     h, w = sup_masks.shape[1:]
