@@ -96,6 +96,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--table1-configs", nargs="+", default=list(TABLE1_CONFIGS), choices=list(TABLE1_CONFIGS))
     p.add_argument("--table1-rescue", action=argparse.BooleanOptionalAction, default=True,
                    help="also the rows with the rescue (default on)")
+    p.add_argument("--table1-merge", nargs="*", type=Path, default=[],
+                   help="result folders of other table1 runs (e.g. a second process on other scenes): their rows are "
+                        "added to this folder's table1 file when missing")
     p.add_argument("--eval-every", type=int, default=250, help="all-view IoU every this many DMTet steps")
     p.add_argument("--threads", type=int, default=bc.THREADS)
     p.add_argument("--timing-repeats", type=int, default=2, help="fast-mode runs per scene in the timing part")
@@ -373,6 +376,15 @@ def part_table1(a: argparse.Namespace, ctx: dict[str, Any]) -> None:
     """
     doc = _start_doc(a, "table1", ctx)
     have = {r["key"]: r for r in doc["runs"]}
+    for folder in a.table1_merge:
+        other = _load_part(folder, "table1") or {"runs": []}
+        for r in other["runs"]:
+            if r["key"] not in have:
+                doc["runs"].append(r)
+                have[r["key"]] = r
+        if other["runs"]:
+            doc.setdefault("merged_from", []).append({"folder": str(folder), "context": other["context"]})
+    bc.write_json(_part_path(a.out, "table1"), doc)
     masks_cache: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
     for name, cname, rescue in table1_jobs(a):
         key = f"{name}/{cname}/{'rescue' if rescue else 'no_rescue'}"
