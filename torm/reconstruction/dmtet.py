@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -119,7 +120,7 @@ class DMTetConfig:
     narrow_band: bool = True
     band_rings: int = 1
     full_pass_every: int = 20
-    eikonal_points: int = 1024
+    eikonal_points: int = 512
     robust_kind: Literal["mad", "gm"] = "mad"
     robust_c: float = 3.0
     sphere_scale: float = 1.3
@@ -259,6 +260,8 @@ class _Field:
         else:
             self.mlp = SDFDeformMLP(cfg.mlp_hidden, cfg.mlp_layers, cfg.mlp_pe_freqs, generator=gen)
             self.params = list(self.mlp.parameters())
+            with torch.no_grad():
+                self.pe = self.mlp.encode(self.x_norm)  # the grid never moves: its positional encoding is fixed
             self._fit(sdf0_cells.float(), gen)
 
     def _fit(self, target_cells: torch.Tensor, gen: torch.Generator) -> None:
@@ -270,7 +273,7 @@ class _Field:
         bs = min(n, 8192)
         for _ in range(self.cfg.mlp_fit_iters):
             idx = torch.randint(0, n, (bs,), generator=gen)
-            out = self.mlp(self.x_norm[idx])
+            out = self.mlp.net(self.pe[idx])
             loss = ((out[:, 0] - tgt[idx]) ** 2).mean() + (out[:, 1:] ** 2).mean()
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -283,7 +286,7 @@ class _Field:
             if idx is not None:
                 s, dv = s[idx], dv[idx]
         else:
-            out = self.mlp(self.x_norm if idx is None else self.x_norm[idx])
+            out = self.mlp.net(self.pe if idx is None else self.pe[idx])
             s, dv = out[:, 0], out[:, 1:]
         fixed = self.fixed if idx is None else self.fixed[idx]
         base = self.base if idx is None else self.base[idx]
@@ -469,6 +472,7 @@ def optimise_dmtet(
     clock = _Clock()
     surf = _Surface(fld, grid, cfg, clock)
     n_run = 0
+    pool = _render_pool(min(nb, torch.get_num_threads()))
     for it in range(cfg.iterations):
         n_run = it + 1
         lr = _lr_at(cfg, it) * lr_scale
@@ -495,8 +499,7 @@ def optimise_dmtet(
             iou = 0.0
         else:
             with clock("render_loss"):
-                pred = render_silhouettes(mv, mf, K_all[idx], T_all[idx], h, w, adjacency_fx3=face_adjacency(
-                    mf.numpy(), len(mv)))
+                pred = _render_views(pool, mv, mf, K_all[idx], T_all[idx], h, w)
                 # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init")
                 per_view = losses.envelope_mask_loss(pred, tgt, alpha)
                 if cfg.loss == "robust":
@@ -561,6 +564,30 @@ def optimise_dmtet(
         history=hist,
         timings=timings,
     )
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _render_pool(n: int) -> ThreadPoolExecutor | None:
+    """A shared pool of ``n`` threads (None for n < 2): the rasteriser's numba kernels release the GIL, so the
+    views of a batch render in parallel on the cores torch may use."""
+    if n < 2:
+        return None
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="torm-raster")
+    return _POOLS[n]
+
+
+def _render_views(pool: ThreadPoolExecutor | None, mv: torch.Tensor, mf: torch.Tensor, K: np.ndarray, T: np.ndarray,
+                  h: int, w: int) -> torch.Tensor:
+    """:func:`render_silhouettes` of the (V, ...) views, split over the pool's threads; same (V, h, w) result."""
+    adj = face_adjacency(mf.numpy(), len(mv))
+    if pool is None or len(K) < 2:
+        return render_silhouettes(mv, mf, K, T, h, w, adjacency_fx3=adj)
+    parts = [p for p in np.array_split(np.arange(len(K)), pool._max_workers) if len(p)]
+    futs = [pool.submit(render_silhouettes, mv, mf, K[p], T[p], h, w, adj) for p in parts]
+    return torch.cat([f.result() for f in futs])
 
 
 def _iou_all(verts: np.ndarray, faces: np.ndarray, K_all: np.ndarray, T_all: np.ndarray, masks: np.ndarray) -> float:
