@@ -323,7 +323,8 @@ class _Surface:
         self.band: Band | None = None
         self.s_v = self.v_v = None
         self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
-                      "grad_verts": 0}
+                      "grad_verts": 0, "backprop_verts": 0}
+        self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
 
     def full_pass(self) -> None:
         """Evaluate every vertex without gradients, count band misses, rebuild the band."""
@@ -357,8 +358,9 @@ class _Surface:
         return out
 
     def _band_mesh(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Signs on the band without gradients, then the field with gradients on the crossing tets' vertices only
-        (every vertex of a crossing tet is an end of a crossing edge; no other vertex reaches the mesh)."""
+        """The field on the band without gradients; the mesh from it, with the SDF and position of every crossing
+        tet's vertex as leaf tensors (every vertex of a crossing tet is an end of a crossing edge, and no other
+        vertex reaches the mesh). :meth:`backward_field` carries their gradients into the MLP."""
         with self.clock("field"), torch.no_grad():
             s_n, v_n = self.fld.evaluate(self.band.vert_ids_n)
         if self.band.boundary_flipped(s_n):
@@ -375,15 +377,35 @@ class _Surface:
             used = torch.zeros(len(s_v), dtype=torch.bool)
             used[tets_c.reshape(-1)] = True
             vc = torch.nonzero(used, as_tuple=True)[0]
-        with self.clock("field_grad"):
-            s_c, v_c = self.fld.evaluate(vc)
-        with self.clock("marching_tets"):
+            s_c = s_v[vc].requires_grad_(True)
+            v_c = v_v[vc].requires_grad_(True)
             s = s_v.index_put((vc,), s_c)
             verts = v_v.index_put((vc,), v_c)
             mv, mf = marching_tets(verts, tets_c, s * self.fld.cell)
         self.s_v, self.v_v = s_v, v_v
+        self._leaves = (vc, s_c, v_c)
         self.stats["grad_verts"] += len(vc)
         return s, verts, mv, mf
+
+    def backward_field(self) -> None:
+        """After ``loss.backward()``: chain the gradients that reached the crossing tets' vertices through the MLP,
+        re-evaluated with gradients only at the vertices whose gradient is not zero (the mask loss reaches only
+        the silhouette's edges). The parameter gradients are those of a full evaluation: a zero upstream
+        gradient contributes nothing."""
+        if not self.banded or self._leaves is None:
+            return
+        vc, s_c, v_c = self._leaves
+        self._leaves = None
+        if s_c.grad is None and v_c.grad is None:
+            return
+        with self.clock("field_grad"):
+            g_s = s_c.grad if s_c.grad is not None else torch.zeros_like(s_c)
+            g_v = v_c.grad if v_c.grad is not None else torch.zeros_like(v_c)
+            k = torch.nonzero((g_s != 0) | (g_v != 0).any(-1), as_tuple=True)[0]
+            self.stats["backprop_verts"] += len(k)
+            if len(k):
+                s_k, v_k = self.fld.evaluate(vc[k])
+                torch.autograd.backward([s_k, v_k], [g_s[k], g_v[k]])
 
 
 class _Clock:
@@ -514,6 +536,9 @@ def optimise_dmtet(
             opt.zero_grad(set_to_none=True)
             if loss.requires_grad:
                 loss.backward()
+        surf.backward_field()
+        with clock("backward_step"):
+            if loss.requires_grad:
                 opt.step()
         hist["loss"].append(float(loss.detach()))
         hist["mask_loss"].append(float(mask_l.detach()))
@@ -524,7 +549,7 @@ def optimise_dmtet(
         hist["n_faces"].append(float(len(mf)))
         if len(mf) == 0 and not cfg.rescue:
             break
-        if (it + 1) % 1000 == 0:
+        if (it + 1) % 250 == 0:
             log.info("DMTet %s/%s step %d/%d: batch IoU %.3f, %d faces, %.0f ms/step so far", cfg.param, cfg.loss,
                      it + 1, cfg.iterations, iou, len(mf), 1e3 * (time.perf_counter() - t_start - t_fit) / (it + 1))
         if cfg.eval_every and (it + 1) % cfg.eval_every == 0 and it + 1 < cfg.iterations:
@@ -541,6 +566,7 @@ def optimise_dmtet(
         hist[k] = [float(surf.stats[k])]
     hist["band_verts"], hist["band_tets"] = surf.stats["band_verts"], surf.stats["band_tets"]
     hist["grad_verts_mean"] = [surf.stats["grad_verts"] / max(1, n_run)]
+    hist["backprop_verts_mean"] = [surf.stats["backprop_verts"] / max(1, n_run)]
     total = time.perf_counter() - t_start
     n_it = max(1, n_run)
     timings = {
