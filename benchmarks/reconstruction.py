@@ -359,10 +359,10 @@ def part_paper(a: argparse.Namespace, ctx: dict[str, Any]) -> None:
 
 
 def table1_jobs(a: argparse.Namespace) -> list[tuple[str, str, bool]]:
-    """(scene, config name, rescue) in run order: every scene's no-rescue rows first, then the rescue rows."""
-    jobs = [(s, c, False) for s in a.table1_scenes for c in a.table1_configs]
+    """(scene, config name, rescue) in run order: each config on every scene, the no-rescue rows first."""
+    jobs = [(s, c, False) for c in a.table1_configs for s in a.table1_scenes]
     if a.table1_rescue:
-        jobs += [(s, c, True) for s in a.table1_scenes for c in a.table1_configs]
+        jobs += [(s, c, True) for c in a.table1_configs for s in a.table1_scenes]
     return jobs
 
 
