@@ -536,7 +536,7 @@ def _fast_md(fast: dict[str, Any], timing: dict[str, Any] | None) -> tuple[str, 
         grows.append([label, d["scenes"], d["geometry_targets_met"], d["iou_mean"], d["chamfer_mm_mean"],
                       d["chamfer_mm_max"], d["volume_iou_mean"], d["volume_ratio_mean"]])
     sg = summary["fast_gt"]
-    md = ["## Fast mode (default config), GT masks\n",
+    md = [f"## Fast mode, {MODE_FAST} (default config), GT masks\n",
           f"Targets (issue): every object found, mean silhouette IoU >= {TARGETS['silhouette_iou_mean']}, Chamfer <= "
           f"{TARGETS['chamfer_mm']} mm, <= {TARGETS['time_s']} s. **{n_ok} of {len(rows)} scenes meet all targets**; "
           f"all objects found in {sg['all_objects_found']}/{len(gts)}; mean IoU {bc.fmt(sg['iou_mean'])} "
@@ -562,7 +562,7 @@ def _fast_md(fast: dict[str, Any], timing: dict[str, Any] | None) -> tuple[str, 
           "IoU >= 0.95 and Chamfer <= 1.5 mm (time not included).\n\n",
           bc.md_table(["scenes", "n", "geometry targets met", "IoU mean", "Chamfer mm mean", "Chamfer mm max",
                        "vol IoU mean", "vol ratio mean"], grows),
-          "\n## Table II: depth from the reconstruction (fast mode, GT masks)\n",
+          f"\n## Table II: depth from the reconstruction ({MODE_FAST}, GT masks)\n",
           "Depth of the reconstructed mesh rendered in every view, compared with the ideal simulator depth inside "
           "the GT masks (pixels the reconstruction does not cover are excluded and counted in coverage). "
           "The paper averages its 12 synthetic scenes (100 views each, Blender); here the simulated scenes, "
@@ -576,7 +576,7 @@ def _fast_md(fast: dict[str, Any], timing: dict[str, Any] | None) -> tuple[str, 
           "\nPer scene:\n\n",
           bc.md_table(["scene", "RMSE m", "AbsRel", "MAE m", "d1.05 %", "d1.10 %", "d1.25 %", "coverage %"], drows,
                       nd=4),
-          "\n## Fast mode with corrupted masks (noisy segmenter, preset "
+          f"\n## Fast mode, {MODE_FAST}, with corrupted masks (noisy segmenter, preset "
           f"`{fast['context']['args']['corrupt_preset']}`, seed = scene seed)\n",
           "Input IoU: corrupted masks vs GT masks (union silhouettes, per view). IoU/Chamfer/volume IoU of the "
           "reconstruction against the GT (not against the corrupted masks). Two variants of the same corrupted "
