@@ -318,6 +318,17 @@ class _Field:
         return losses.eikonal_loss_grad(g_cells)
 
 
+def _bf16_supported() -> bool:
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # pragma: no cover - torch builds without oneDNN
+        return False
+
+
+#: native bfloat16 matmuls on this CPU (AVX512-BF16/AMX): used for the full passes of the narrow band only
+_BF16 = _bf16_supported()
+
+
 class _Surface:
     """The mesh of the field each step: a full evaluation, or the MLP on a narrow band (same mesh, cheaper)."""
 
@@ -331,9 +342,16 @@ class _Surface:
         self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
 
     def full_pass(self) -> None:
-        """Evaluate every vertex without gradients, count band misses, rebuild the band."""
-        with self.clock("full_pass"), torch.no_grad():
+        """Evaluate every vertex without gradients, count band misses, rebuild the band.
+
+        In bfloat16 where the CPU has native support (3.5x faster here): these values only choose the band and
+        count misses; every band vertex is evaluated again in float32 before the mesh is extracted, so the mesh
+        never sees them (at most a crossing tet whose |s| is below bfloat16's resolution, ~0.4 % of |s|, and
+        more than a ring away from any other crossing tet could be left out until the next pass).
+        """
+        with self.clock("full_pass"), torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=_BF16):
             s, v = self.fld.evaluate()
+            s, v = s.float(), v.float()
             if self.band is not None:
                 self.stats["band_misses"] += self.band.misses(s)
             self.s_v, self.v_v = s, v
