@@ -483,6 +483,7 @@ def optimise_dmtet(
         (``history["rescued_steps"]``). ``history["empty_steps"]`` counts the steps with an empty mesh.
     """
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     V_views, h, w = masks_vxhxw.shape
     gen = torch.Generator().manual_seed(int(cfg.seed))
     rng = np.random.default_rng(cfg.seed)
@@ -593,6 +594,8 @@ def optimise_dmtet(
     n_it = max(1, n_run)
     timings = {
         "total_s": total,
+        # CPU seconds of this process (all threads): robust to other processes sharing the cores
+        "total_cpu_s": time.process_time() - cpu_start,
         "mlp_fit_s": t_fit,
         "ms_per_step": 1e3 * (total - t_fit) / n_it if cfg.iterations else 0.0,
         "steps_run": float(n_run),
