@@ -97,14 +97,15 @@ def test_paper_mode_vertex_param_grows_iou_and_finds_both(capture):
     assert rec.history["alpha"][0] == 3.0 and rec.history["alpha"][-1] == 1.0
 
 
-def test_empty_mesh_mid_run_is_survived(capture):
+def test_empty_mesh_mid_run_is_survived_with_the_rescue(capture):
     sil = capture.masks() > 0
     masks, K = downsample_masks(sil, capture.Ks(), 48)
     grid = build_tet_grid(BOUNDS, 20)
-    cfg = DMTetConfig(param="vertex", start="hull", loss="init", iterations=40, lr=0.3, lr_min=0.05, eval_every=0)
+    cfg = DMTetConfig(param="vertex", start="hull", loss="init", iterations=40, lr=0.3, lr_min=0.05, eval_every=0,
+                      rescue=True)
     res = optimise_dmtet(grid, K, np.linalg.inv(capture.poses()), masks, cfg,
                          init_sdf_v=np.full(grid.n_verts, 0.05), table_z=0.0)  # everything outside: empty
-    assert res.history["empty_steps"][0] >= 1
+    assert res.history["empty_steps"][0] >= 1 and res.history["rescued_steps"] == res.history["empty_steps"]
     assert len(res.history["loss"]) == 40
     assert len(res.mesh.faces_fx3) > 0 and res.history["iou_all"][-1] > 0.2
 
@@ -163,7 +164,12 @@ def test_configs_are_validated():
         ReconstructionConfig(mode="slow")
     with pytest.raises(ConfigError):
         ReconstructionConfig(vote_tolerance=1.5)
-    assert DMTetConfig().decay_T == 300 and DMTetConfig(alpha_decay_iters=7).decay_T == 7
+    assert DMTetConfig().decay_T == 2500 and DMTetConfig(alpha_decay_iters=7).decay_T == 7
+    assert DMTetConfig().iterations == 5000 and DMTetConfig().rescue is False
+    with pytest.raises(ConfigError):
+        DMTetConfig(init_lr_scale=0.0)
+    with pytest.raises(ConfigError):
+        DMTetConfig(full_pass_every=0)
     from torm.config import from_dict
 
     c = from_dict(ReconstructionConfig, {"bounds": [[0.3, -0.2, 0.0], [0.8, 0.2, 0.2]]},

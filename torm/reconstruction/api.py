@@ -19,6 +19,8 @@ Modes (:func:`mode_label` gives the name every table and record uses):
   loss with the alpha schedule); the :class:`DMTetConfig` in ``config.dmtet`` is used as given except
   ``start="sphere"``.
 - ``"carve"``: the survivors-only voxel carve (:mod:`torm.reconstruction.carve`) at ``carve_res``, a baseline.
+- ``"paper"`` runs as the paper does: 5000 steps, **no rescue** (a mesh that vanishes raises
+  ReconstructionError naming the step; ``DMTetConfig.rescue`` re-seeds it from the silhouettes, not in the paper).
 
 Then, in every mode: marching tets / cubes -> connected components -> small components and cavities dropped
 -> per-object checks (:func:`torm.reconstruction.objects.check_objects`: a component seen by fewer than
@@ -492,7 +494,15 @@ def _dense_grid_modes(sil, Ks, poses, bounds, table_z, vote, config, info, timin
     history.update(res.history)
     timings["dmtet"] = res.timings["total_s"]
     info["dmtet_ms_per_step"] = res.timings["ms_per_step"]
-    info["empty_steps"] = int(res.history.get("empty_steps", [0])[0])
+    info["dmtet_timings"] = res.timings
+    h = res.history
+    info["empty_steps"] = int(h.get("empty_steps", [0])[0])
+    info["rescued_steps"] = int(h.get("rescued_steps", [0])[0])
+    info["collapsed_at"] = int(h.get("collapsed_at", [-1])[0])
+    if "full_passes" in h:
+        bv = h.get("band_verts", [])
+        info["dmtet_band"] = {"full_passes": int(h["full_passes"][0]), "band_misses": int(h["band_misses"][0]),
+                              "band_verts_mean": float(np.mean(bv)) if len(bv) else None}
     return res.mesh
 
 
@@ -565,9 +575,12 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
             mesh = _dense_grid_modes(repaired if config.mode == "fast" else sil, Ks, poses, bounds, table_z, vote,
                                      config, info, timings, history)
     if mesh.is_empty:
+        collapsed = info.get("collapsed_at", -1)
+        vanished = (f" (DMTet-Multi's mesh vanished at step {collapsed}; DMTetConfig.rescue re-seeds it "
+                    "from the silhouettes, which the paper does not)") if collapsed >= 0 else ""
         raise ReconstructionError(
-            "no object reconstructed: the final mesh is empty; check masks/cameras (poses, intrinsics, mask ids) and "
-            f"the reconstruction box {np.round(bounds, 4).tolist()} ({bounds_src}); {BOUNDS_HINT}")
+            "no object reconstructed: the final mesh is empty" + vanished + "; check masks/cameras (poses, intrinsics, "
+            f"mask ids) and the reconstruction box {np.round(bounds, 4).tolist()} ({bounds_src}); {BOUNDS_HINT}")
 
     t = time.perf_counter()
     comps, dropped = _split(mesh, config)

@@ -7,6 +7,14 @@ silhouettes of ``views_per_batch`` random views (:mod:`torm.reconstruction.raste
 eq. 2 with the alpha schedule of eq. 3, or robust per-view weighted) summed over the batch views plus
 the eikonal term (eq. 4), i.e. eq. (5) -> Adam with a decaying learning rate.
 
+With the MLP the field is evaluated only in a narrow band of tets around the current surface
+(:mod:`torm.reconstruction.narrow_band`), re-evaluated on the whole grid every ``full_pass_every`` steps and
+whenever the band's boundary changes sign; the mesh and all gradients are those of the full evaluation
+(``narrow_band=False`` runs the full evaluation every step, the reference path). An empty mesh is reported as
+empty: the run stops there (no gradient can reach the field any more), ``history["collapsed_at"]`` holds the
+step, and the result's mesh is empty. ``rescue=True`` instead pulls the SDF down inside the batch
+silhouettes (a mini visual hull, not in the paper) and counts the steps in ``history["rescued_steps"]``.
+
 Internally SDF values are in units of the mean grid cell edge (so learning rates do not depend on the
 grid resolution); inputs and outputs are in metres. Grid vertices on the outer boundary of the box and
 below the table plane are held outside (s = +0.5 cell), which keeps every extracted mesh closed.
@@ -17,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -28,6 +37,7 @@ from torm.errors import ConfigError
 from torm.reconstruction import losses
 from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.mlp import SDFDeformMLP
+from torm.reconstruction.narrow_band import Band, build_band
 from torm.reconstruction.raster import face_adjacency, render_mask, render_silhouettes
 from torm.reconstruction.tetgrid import TetGrid
 from torm.types import TriMesh
@@ -47,44 +57,74 @@ class DMTetConfig:
         param: ``"vertex"`` (per-vertex SDF + deformation tensors) or ``"mlp"`` (3-layer MLP f(v)).
         start: ``"sphere"`` (oversized dome on the table covering the workspace) or ``"hull"`` (caller's SDF).
         loss: ``"init"`` eq. (1), ``"envelope"`` eq. (2)+(3), ``"robust"`` eq. (2)+(3) with robust per-view weights.
-        iterations: optimisation steps.
-        views_per_batch: N_view of eq. (5), views rendered per step.
+        iterations: optimisation steps. Default 5000: the paper's end-to-end timing ("a sufficiently good
+            geometric representation in 5k steps, taking 177.3 s", Sec. IV-D), i.e. what a robot run uses; its
+            Table I ablation runs 8000 (``benchmarks/reconstruction.py --table1`` does).
+        views_per_batch: N_view of eq. (5), views rendered per step (the paper gives no value).
         mask_res: longest side (px) of the supervision masks, for :func:`downsample_masks` (area average,
             K scaled); :func:`optimise_dmtet` takes masks already at that size and ``reconstruct()``
             sets it from ``ReconstructionConfig.mask_res``.
         lr, lr_min: Adam learning rate at the start and the end of per-vertex parameters (units: cells).
+        init_lr_scale: learning-rate factor for ``loss="init"`` (eq. 1) from the sphere start. The paper: "to
+            mitigate this collapse, a lower learning rate is applied for L_init" without a value; 0.1 (one
+            decade) is our choice, and ``benchmarks/reconstruction.py --table1`` also runs L_init at 1.0.
         lr_schedule: ``"exp"`` (geometric decay lr -> lr_min) or ``"cosine"``.
         lambda_mask, lambda_eikonal: weights of eq. (5).
         alpha_max, alpha_min: envelope coefficient bounds of eq. (3).
         alpha_decay_iters: decay duration of eq. (3) in iterations; None = half the iterations.
         max_deform: deformation limit as a fraction of a cell (tanh-scaled).
         eval_every: IoU over all views every this many steps (0 = only at the end).
+        rescue: when the mesh vanishes, pull the SDF below zero inside the batch silhouettes (not in the paper;
+            counted in ``history["rescued_steps"]``) instead of stopping with an empty mesh.
+        narrow_band: MLP only: each step evaluate the field without gradients on a narrow band of tets around
+            the surface and with gradients only on the vertices of crossing tets (the only ones that reach the
+            mesh); False = every vertex with gradients every step (the reference path; same mesh, same
+            gradients, see tests/test_recon_paper_mode.py).
+        band_rings: the band's half-width in cells (lattice steps) around the crossing tets.
+        full_pass_every: MLP with a band: evaluate every vertex (no gradient) and rebuild the band every this
+            many steps, so that surface appearing outside the band is found.
+        eikonal_points: MLP only: zero-crossing points per step at which eq. (4) is evaluated, a uniform random
+            subset when there are more (an unbiased estimate of eq. 4's mean; 0 = all of them).
         robust_kind, robust_c: per-view weighting of the ``"robust"`` loss (:func:`losses.robust_view_weights`).
         sphere_scale: dome radii as a multiple of the box half-extents (xy) and height (z).
-        start_band: the start SDF is clamped to +-start_band cells, so a surface moves one cell in a
-            few steps (a per-vertex SDF far from zero would take 1/lr steps per cell).
+        start_band: per-vertex parameters: the start SDF is clamped to +-start_band cells, so a surface moves
+            one cell in a few steps (a per-vertex SDF far from zero would take 1/lr steps per cell).
         mlp_hidden, mlp_layers, mlp_pe_freqs: MLP size and positional-encoding frequencies.
         mlp_fit_iters, mlp_fit_lr: initial fit of the MLP to the start SDF.
-        mlp_lr: Adam step of the MLP weights at the start (decays by the same factor lr_min / lr).
+        mlp_fit_clamp: the MLP is fit to the start SDF clamped to +-mlp_fit_clamp cells; 0 = unclamped, the true
+            distance as kaolin's DMTet reference pre-trains its MLP on a sphere SDF. A clamp of 1 cell (what
+            per-vertex parameters use) lets one uniform output shift of the MLP erase the whole dome: measured on
+            syn5, grid 48, the mesh vanished at step 9.
+        mlp_lr: Adam step of the MLP weights at the start (decays by the same factor lr_min / lr). The paper
+            gives no value. 1e-4, a tenth of kaolin's DMTet tutorial (1e-3), because at 1e-3 one Adam step moves
+            the whole MLP surface by about a cell and the dome is erased before it reaches the objects (measured,
+            syn4, grid 48, envelope loss: mesh gone at step 26; at 3e-4 at step 112), while the paper describes a
+            shrink over thousands of steps (Fig. 6) and an L_init collapse "by about 10k iterations".
         seed: seeds the view sampling and the MLP initialisation.
     """
 
     param: Literal["mlp", "vertex"] = "mlp"
     start: Literal["sphere", "hull"] = "sphere"
     loss: Literal["init", "envelope", "robust"] = "envelope"
-    iterations: int = 600
+    iterations: int = 5000
     views_per_batch: int = 4
     mask_res: int = 128
     lr: float = 0.3
     lr_min: float = 0.02
     lr_schedule: Literal["exp", "cosine"] = "exp"
+    init_lr_scale: float = 0.1
     lambda_mask: float = 1.0
     lambda_eikonal: float = 0.01
     alpha_max: float = 3.0
     alpha_min: float = 1.0
     alpha_decay_iters: int | None = None
     max_deform: float = 0.45
-    eval_every: int = 50
+    eval_every: int = 250
+    rescue: bool = False
+    narrow_band: bool = True
+    band_rings: int = 1
+    full_pass_every: int = 20
+    eikonal_points: int = 512
     robust_kind: Literal["mad", "gm"] = "mad"
     robust_c: float = 3.0
     sphere_scale: float = 1.3
@@ -94,7 +134,8 @@ class DMTetConfig:
     mlp_pe_freqs: int = 4
     mlp_fit_iters: int = 300
     mlp_fit_lr: float = 1e-3
-    mlp_lr: float = 1e-3
+    mlp_fit_clamp: float = 0.0
+    mlp_lr: float = 1e-4
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -116,8 +157,14 @@ class DMTetConfig:
             raise ConfigError(f"DMTetConfig.max_deform must be in [0, 0.5) cells, got {self.max_deform}")
         if self.eval_every < 0 or self.robust_c <= 0 or self.sphere_scale <= 0 or self.start_band <= 0:
             raise ConfigError("DMTetConfig: eval_every >= 0, robust_c, sphere_scale and start_band > 0 required")
+        if not 0 < self.init_lr_scale <= 1:
+            raise ConfigError(f"DMTetConfig.init_lr_scale must be in (0, 1], got {self.init_lr_scale}")
+        if self.band_rings < 0 or self.full_pass_every < 1 or self.eikonal_points < 0:
+            raise ConfigError("DMTetConfig: band_rings >= 0 cells, full_pass_every >= 1 step, eikonal_points >= 0")
         if self.mlp_lr <= 0 or self.mlp_fit_lr <= 0:
             raise ConfigError("DMTetConfig: mlp_lr and mlp_fit_lr must be > 0")
+        if self.mlp_fit_clamp < 0:
+            raise ConfigError(f"DMTetConfig.mlp_fit_clamp must be >= 0 cells (0 = unclamped), got {self.mlp_fit_clamp}")
         if self.mlp_hidden < 1 or self.mlp_layers < 1 or self.mlp_pe_freqs < 0 or self.mlp_fit_iters < 0:
             raise ConfigError("DMTetConfig: mlp_hidden, mlp_layers >= 1 and mlp_pe_freqs, mlp_fit_iters >= 0")
 
@@ -217,48 +264,189 @@ class _Field:
         else:
             self.mlp = SDFDeformMLP(cfg.mlp_hidden, cfg.mlp_layers, cfg.mlp_pe_freqs, generator=gen)
             self.params = list(self.mlp.parameters())
+            with torch.no_grad():
+                self.pe = self.mlp.encode(self.x_norm)  # the grid never moves: its positional encoding is fixed
             self._fit(sdf0_cells.float(), gen)
 
     def _fit(self, target_cells: torch.Tensor, gen: torch.Generator) -> None:
-        """Fit the MLP to the start SDF (clamped to +-4 cells, where the shape lives) with zero deformation."""
+        """Fit the MLP to the start SDF (cells) with zero deformation, ``mlp_fit_iters`` Adam steps on random
+        batches of grid vertices."""
         opt = torch.optim.Adam(self.params, lr=self.cfg.mlp_fit_lr)
-        tgt = target_cells.clamp(-4.0, 4.0)
+        tgt = target_cells
         n = len(self.x_norm)
         bs = min(n, 8192)
         for _ in range(self.cfg.mlp_fit_iters):
             idx = torch.randint(0, n, (bs,), generator=gen)
-            out = self.mlp(self.x_norm[idx])
+            out = self.mlp.net(self.pe[idx])
             loss = ((out[:, 0] - tgt[idx]) ** 2).mean() + (out[:, 1:] ** 2).mean()
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
 
-    def evaluate(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(sdf (V,) in cells with fixed vertices outside, deformed vertices (V, 3) m)."""
+    def evaluate(self, idx: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(sdf (N,) in cells with fixed vertices outside, deformed vertices (N, 3) m) of all vertices or ``idx``."""
         if self.mlp is None:
             s, dv = self.sdf, self.dv
+            if idx is not None:
+                s, dv = s[idx], dv[idx]
         else:
-            out = self.mlp(self.x_norm)
+            out = self.mlp.net(self.pe if idx is None else self.pe[idx])
             s, dv = out[:, 0], out[:, 1:]
-        s = torch.where(self.fixed, torch.full_like(s, 0.5), s)
-        verts = self.base + self.cfg.max_deform * self.cell_3 * torch.tanh(dv)
+        fixed = self.fixed if idx is None else self.fixed[idx]
+        base = self.base if idx is None else self.base[idx]
+        s = torch.where(fixed, torch.full_like(s, 0.5), s)
+        verts = base + self.cfg.max_deform * self.cell_3 * torch.tanh(dv)
         return s, verts
 
-    def eikonal(self, s_cells: torch.Tensor, verts: torch.Tensor) -> torch.Tensor:
-        edges = self.grid.edges_ex2
+    def eikonal(self, s_cells: torch.Tensor, verts: torch.Tensor, v0_mx3: torch.Tensor,
+                gen: torch.Generator) -> torch.Tensor:
+        """Eq. (4). Per-vertex: the discrete form on the grid's zero-crossing edges. MLP: |grad_v f_s(v_0)| at
+        the zero-crossing points ``v0_mx3`` (the marching-tets vertices, the paper's v_0), ``eikonal_points`` of
+        them drawn uniformly when there are more."""
         if self.mlp is None:
-            return losses.eikonal_loss_edges(s_cells, verts / self.cell, edges)
-        with torch.no_grad():
-            v0 = losses.zero_crossing_points(s_cells, verts, edges)
+            return losses.eikonal_loss_edges(s_cells, verts / self.cell, self.grid.edges_ex2)
+        v0 = v0_mx3.detach()
         if len(v0) == 0:
             return s_cells.sum() * 0.0
-        if len(v0) > 8192:
-            v0 = v0[torch.linspace(0, len(v0) - 1, 8192).long()]
+        n_max = self.cfg.eikonal_points
+        if n_max and len(v0) > n_max:
+            v0 = v0[torch.randperm(len(v0), generator=gen)[:n_max]]
         x = ((v0 - self.lo) / self.ext * 2.0 - 1.0).requires_grad_(True)
         f = self.mlp(x)[:, 0]
         (g,) = torch.autograd.grad(f.sum(), x, create_graph=True)
         g_cells = g * 2.0 / self.ext * self.cell  # d(sdf cells) / d(position in cells)
         return losses.eikonal_loss_grad(g_cells)
+
+
+def _bf16_supported() -> bool:
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # pragma: no cover - torch builds without oneDNN
+        return False
+
+
+#: native bfloat16 matmuls on this CPU (AVX512-BF16/AMX): used for the full passes of the narrow band only
+_BF16 = _bf16_supported()
+
+
+class _Surface:
+    """The mesh of the field each step: a full evaluation, or the MLP on a narrow band (same mesh, cheaper)."""
+
+    def __init__(self, fld: _Field, grid: TetGrid, cfg: DMTetConfig, clock: _Clock) -> None:
+        self.fld, self.grid, self.cfg, self.clock = fld, grid, cfg, clock
+        self.banded = cfg.param == "mlp" and cfg.narrow_band
+        self.band: Band | None = None
+        self.s_v = self.v_v = None
+        self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
+                      "grad_verts": 0, "backprop_verts": 0}
+        self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+
+    def full_pass(self) -> None:
+        """Evaluate every vertex without gradients, count band misses, rebuild the band.
+
+        In bfloat16 where the CPU has native support (3.5x faster here): these values only choose the band and
+        count misses; every band vertex is evaluated again in float32 before the mesh is extracted, so the mesh
+        never sees them (at most a crossing tet whose |s| is below bfloat16's resolution, ~0.4 % of |s|, and
+        more than a ring away from any other crossing tet could be left out until the next pass).
+        """
+        with self.clock("full_pass"), torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=_BF16):
+            s, v = self.fld.evaluate()
+            s, v = s.float(), v.float()
+            if self.band is not None:
+                self.stats["band_misses"] += self.band.misses(s)
+            self.s_v, self.v_v = s, v
+            self.band = build_band(self.grid.tets_tx4, s, self.grid.grid_shape, self.cfg.band_rings)
+        self.stats["full_passes"] += 1
+        self.stats["band_verts"].append(float(self.band.n_verts))
+        self.stats["band_tets"].append(float(self.band.n_tets))
+
+    def extract(self, it: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(sdf (V,) cells, deformed vertices (V, 3) m, mesh vertices, mesh faces), differentiable."""
+        cell = self.fld.cell
+        if not self.banded:
+            with self.clock("field"):
+                s, verts = self.fld.evaluate()
+            with self.clock("marching_tets"):
+                mv, mf = marching_tets(verts, self.grid.tets_tx4, s * cell)
+            return s, verts, mv, mf
+        fresh = self.band is None or it % self.cfg.full_pass_every == 0
+        if fresh:
+            self.full_pass()
+        out = self._band_mesh()
+        if len(out[3]) == 0 and not fresh:
+            # nothing in the band: look at the whole grid before calling the mesh empty
+            self.full_pass()
+            out = self._band_mesh()
+        return out
+
+    def _band_mesh(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The field on the band without gradients; the mesh from it, with the SDF and position of every crossing
+        tet's vertex as leaf tensors (every vertex of a crossing tet is an end of a crossing edge, and no other
+        vertex reaches the mesh). :meth:`backward_field` carries their gradients into the MLP."""
+        with self.clock("field"), torch.no_grad():
+            s_n, v_n = self.fld.evaluate(self.band.vert_ids_n)
+        if self.band.boundary_flipped(s_n):
+            self.stats["boundary_rebuilds"] += 1
+            self.full_pass()
+            with self.clock("field"), torch.no_grad():
+                s_n, v_n = self.fld.evaluate(self.band.vert_ids_n)
+        with self.clock("marching_tets"):
+            ids = self.band.vert_ids_n
+            s_v, v_v = self.s_v.clone(), self.v_v.clone()
+            s_v[ids], v_v[ids] = s_n, v_n
+            n_in = (s_v < 0)[self.band.tets_bx4].sum(-1)
+            tets_c = self.band.tets_bx4[(n_in > 0) & (n_in < 4)]
+            used = torch.zeros(len(s_v), dtype=torch.bool)
+            used[tets_c.reshape(-1)] = True
+            vc = torch.nonzero(used, as_tuple=True)[0]
+            s_c = s_v[vc].requires_grad_(True)
+            v_c = v_v[vc].requires_grad_(True)
+            s = s_v.index_put((vc,), s_c)
+            verts = v_v.index_put((vc,), v_c)
+            mv, mf = marching_tets(verts, tets_c, s * self.fld.cell)
+        self.s_v, self.v_v = s_v, v_v
+        self._leaves = (vc, s_c, v_c)
+        self.stats["grad_verts"] += len(vc)
+        return s, verts, mv, mf
+
+    def backward_field(self) -> None:
+        """After ``loss.backward()``: chain the gradients that reached the crossing tets' vertices through the MLP,
+        re-evaluated with gradients only at the vertices whose gradient is not zero (the mask loss reaches only
+        the silhouette's edges). The parameter gradients are those of a full evaluation: a zero upstream
+        gradient contributes nothing."""
+        if not self.banded or self._leaves is None:
+            return
+        vc, s_c, v_c = self._leaves
+        self._leaves = None
+        if s_c.grad is None and v_c.grad is None:
+            return
+        with self.clock("field_grad"):
+            g_s = s_c.grad if s_c.grad is not None else torch.zeros_like(s_c)
+            g_v = v_c.grad if v_c.grad is not None else torch.zeros_like(v_c)
+            k = torch.nonzero((g_s != 0) | (g_v != 0).any(-1), as_tuple=True)[0]
+            self.stats["backprop_verts"] += len(k)
+            if len(k):
+                s_k, v_k = self.fld.evaluate(vc[k])
+                torch.autograd.backward([s_k, v_k], [g_s[k], g_v[k]])
+
+
+class _Clock:
+    """Accumulated wall time per stage: ``with clock("stage"): ...``."""
+
+    def __init__(self) -> None:
+        self.s: dict[str, float] = {}
+        self._name = ""
+        self._t = 0.0
+
+    def __call__(self, name: str) -> _Clock:
+        self._name = name
+        return self
+
+    def __enter__(self) -> None:
+        self._t = time.perf_counter()
+
+    def __exit__(self, *exc: object) -> None:
+        self.s[self._name] = self.s.get(self._name, 0.0) + time.perf_counter() - self._t
 
 
 def _lr_at(cfg: DMTetConfig, it: int) -> float:
@@ -289,10 +477,13 @@ def optimise_dmtet(
         table_z: table height (m); grid vertices below it are held outside (and the dome stands on it).
 
     Returns:
-        :class:`DMTetResult`; an empty mesh mid-run is counted in ``history["empty_steps"]`` and
-        answered with a loss that pulls the SDF down at vertices projecting inside the batch silhouettes.
+        :class:`DMTetResult`. When the mesh vanishes, without ``cfg.rescue`` the run stops at that step with an
+        empty mesh (``history["collapsed_at"] = [step]``, else ``[-1]``); with it the step is answered with a
+        loss that pulls the SDF down at vertices projecting inside the batch silhouettes
+        (``history["rescued_steps"]``). ``history["empty_steps"]`` counts the steps with an empty mesh.
     """
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     V_views, h, w = masks_vxhxw.shape
     gen = torch.Generator().manual_seed(int(cfg.seed))
     rng = np.random.default_rng(cfg.seed)
@@ -307,54 +498,71 @@ def optimise_dmtet(
         sdf0 = dome_sdf(grid.verts_vx3.numpy(), grid.bounds, floor, cfg.sphere_scale)
     fixed = torch.from_numpy(fixed_outside_mask(grid, table_z))
     t0 = time.perf_counter()
-    sdf0_cells = np.clip(sdf0 / cell, -cfg.start_band, cfg.start_band)
+    clamp = cfg.start_band if cfg.param == "vertex" else (cfg.mlp_fit_clamp or np.inf)
+    sdf0_cells = np.clip(sdf0 / cell, -clamp, clamp)
     fld = _Field(grid, torch.from_numpy(sdf0_cells), fixed, cfg, gen)
     t_fit = time.perf_counter() - t0
-    # the schedule shape is shared; the MLP's weights step at mlp_lr instead of lr (in cells)
+    # the schedule shape is shared; the MLP's weights step at mlp_lr instead of lr (in cells); L_init runs at a
+    # lower learning rate from the sphere start (the paper, Sec. IV-B; a hull start is the fast mode's refinement)
     lr_scale = 1.0 if cfg.param == "vertex" else cfg.mlp_lr / cfg.lr
+    if cfg.loss == "init" and cfg.start == "sphere":
+        lr_scale *= cfg.init_lr_scale
     opt = torch.optim.Adam(fld.params, lr=cfg.lr * lr_scale)
     masks_t = torch.from_numpy(np.ascontiguousarray(masks_vxhxw, dtype=np.float32))
     K_all = np.asarray(K_vx3x3, dtype=np.float64)
     T_all = np.asarray(T_cam_world_vx4x4, dtype=np.float64)
     hist: dict[str, list[float]] = {k: [] for k in ("loss", "mask_loss", "eikonal", "iou", "alpha", "lr", "n_faces")}
-    hist.update(eval_iter=[], iou_all=[], empty_steps=[0.0])
+    hist.update(eval_iter=[], iou_all=[], empty_steps=[0.0], rescued_steps=[0.0], collapsed_at=[-1.0])
     nb = min(cfg.views_per_batch, V_views)
-    t_mt = t_rd = 0.0
+    clock = _Clock()
+    surf = _Surface(fld, grid, cfg, clock)
+    n_run = 0
+    pool = _render_pool(min(nb, torch.get_num_threads()))
     for it in range(cfg.iterations):
+        n_run = it + 1
         lr = _lr_at(cfg, it) * lr_scale
         for g in opt.param_groups:
             g["lr"] = lr
         alpha = 1.0 if cfg.loss == "init" else losses.alpha_schedule(it, cfg.alpha_max, cfg.alpha_min, cfg.decay_T)
         idx = rng.choice(V_views, size=nb, replace=False)
-        s, verts = fld.evaluate()
-        ta = time.perf_counter()
-        mv, mf = marching_tets(verts, grid.tets_tx4, s * cell)
-        tb = time.perf_counter()
+        s, verts, mv, mf = surf.extract(it)
         tgt = masks_t[idx]
         if len(mf) == 0:
             hist["empty_steps"][0] += 1
-            loss = _empty_rescue_loss(s, fld.base, K_all[idx], T_all[idx], masks_vxhxw[idx])
             mask_l = losses.mask_loss_init(torch.zeros_like(tgt), tgt).sum()
-            eik = loss * 0.0
+            if not cfg.rescue:
+                hist["collapsed_at"][0] = float(it)
+                log.warning("DMTet %s/%s: the mesh vanished at step %d of %d; stopping with an empty mesh "
+                            "(no gradient reaches the field any more; DMTetConfig.rescue re-seeds it)",
+                            cfg.param, cfg.loss, it, cfg.iterations)
+                loss = eik = mask_l
+            else:
+                hist["rescued_steps"][0] += 1
+                s_full = s if not surf.banded else fld.evaluate()[0]
+                loss = _empty_rescue_loss(s_full, fld.base, K_all[idx], T_all[idx], masks_vxhxw[idx])
+                eik = loss * 0.0
             iou = 0.0
         else:
-            pred = render_silhouettes(mv, mf, K_all[idx], T_all[idx], h, w, adjacency_fx3=face_adjacency(
-                mf.numpy(), len(mv)))
-            # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init")
-            per_view = losses.envelope_mask_loss(pred, tgt, alpha)
-            if cfg.loss == "robust":
-                per_view = per_view * losses.robust_view_weights(per_view, cfg.robust_kind, cfg.robust_c)
-            mask_l = per_view.sum()
-            eik = fld.eikonal(s, verts) if cfg.lambda_eikonal > 0 else mask_l * 0.0
+            with clock("render_loss"):
+                pred = _render_views(pool, mv, mf, K_all[idx], T_all[idx], h, w)
+                # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init")
+                per_view = losses.envelope_mask_loss(pred, tgt, alpha)
+                if cfg.loss == "robust":
+                    per_view = per_view * losses.robust_view_weights(per_view, cfg.robust_kind, cfg.robust_c)
+                mask_l = per_view.sum()
+                pn, tn = pred.detach().numpy(), tgt.numpy()
+                iou = float(np.mean([silhouette_iou(pn[i], tn[i]) for i in range(nb)]))
+            with clock("eikonal"):
+                eik = fld.eikonal(s, verts, mv, gen) if cfg.lambda_eikonal > 0 else mask_l * 0.0
             loss = cfg.lambda_mask * mask_l + cfg.lambda_eikonal * eik
-            pn, tn = pred.detach().numpy(), tgt.numpy()
-            iou = float(np.mean([silhouette_iou(pn[i], tn[i]) for i in range(nb)]))
-        t_rd += time.perf_counter() - tb
-        t_mt += tb - ta
-        opt.zero_grad(set_to_none=True)
-        if loss.requires_grad:
-            loss.backward()
-            opt.step()
+        with clock("backward_step"):
+            opt.zero_grad(set_to_none=True)
+            if loss.requires_grad:
+                loss.backward()
+        surf.backward_field()
+        with clock("backward_step"):
+            if loss.requires_grad:
+                opt.step()
         hist["loss"].append(float(loss.detach()))
         hist["mask_loss"].append(float(mask_l.detach()))
         hist["eikonal"].append(float(eik.detach()))
@@ -362,26 +570,44 @@ def optimise_dmtet(
         hist["alpha"].append(alpha)
         hist["lr"].append(lr)
         hist["n_faces"].append(float(len(mf)))
+        if len(mf) == 0 and not cfg.rescue:
+            break
+        if (it + 1) % 250 == 0:
+            log.info("DMTet %s/%s step %d/%d: batch IoU %.3f, %d faces, %.0f ms/step so far", cfg.param, cfg.loss,
+                     it + 1, cfg.iterations, iou, len(mf), 1e3 * (time.perf_counter() - t_start - t_fit) / (it + 1))
         if cfg.eval_every and (it + 1) % cfg.eval_every == 0 and it + 1 < cfg.iterations:
-            hist["eval_iter"].append(float(it + 1))
-            hist["iou_all"].append(_iou_all(mv.detach().numpy(), mf.numpy(), K_all, T_all, masks_vxhxw))
-    with torch.no_grad():
+            with clock("eval"):
+                hist["eval_iter"].append(float(it + 1))
+                hist["iou_all"].append(_iou_all(mv.detach().numpy(), mf.numpy(), K_all, T_all, masks_vxhxw))
+    with clock("final"), torch.no_grad():
         s, verts = fld.evaluate()
         mv, mf = marching_tets(verts, grid.tets_tx4, s * cell)
     mesh = TriMesh(mv.numpy().astype(np.float64), mf.numpy())
-    hist["eval_iter"].append(float(cfg.iterations))
+    hist["eval_iter"].append(float(n_run))
     hist["iou_all"].append(_iou_all(mesh.verts_vx3, mesh.faces_fx3, K_all, T_all, masks_vxhxw))
+    for k in ("full_passes", "boundary_rebuilds", "band_misses"):
+        hist[k] = [float(surf.stats[k])]
+    hist["band_verts"], hist["band_tets"] = surf.stats["band_verts"], surf.stats["band_tets"]
+    hist["grad_verts_mean"] = [surf.stats["grad_verts"] / max(1, n_run)]
+    hist["backprop_verts_mean"] = [surf.stats["backprop_verts"] / max(1, n_run)]
     total = time.perf_counter() - t_start
-    n_it = max(1, cfg.iterations)
+    n_it = max(1, n_run)
     timings = {
         "total_s": total,
+        # CPU seconds of this process (all threads): robust to other processes sharing the cores
+        "total_cpu_s": time.process_time() - cpu_start,
         "mlp_fit_s": t_fit,
         "ms_per_step": 1e3 * (total - t_fit) / n_it if cfg.iterations else 0.0,
-        "marching_tets_ms_per_step": 1e3 * t_mt / n_it,
-        "render_loss_ms_per_step": 1e3 * t_rd / n_it,
+        "steps_run": float(n_run),
     }
-    log.info("DMTet %s/%s/%s: %d steps, %.1f ms/step, final IoU %.3f, %d empty steps", cfg.param, cfg.start,
-             cfg.loss, cfg.iterations, timings["ms_per_step"], hist["iou_all"][-1], int(hist["empty_steps"][0]))
+    for k, v in clock.s.items():
+        timings[f"{k}_ms_per_step"] = 1e3 * v / n_it
+    # the names earlier result files use
+    timings["render_loss_ms_per_step"] = timings.get("render_loss_ms_per_step", 0.0)
+    timings["marching_tets_ms_per_step"] = timings.get("marching_tets_ms_per_step", 0.0)
+    log.info("DMTet %s/%s/%s: %d of %d steps, %.1f ms/step, final IoU %.3f, %d empty steps, %d rescued",
+             cfg.param, cfg.start, cfg.loss, n_run, cfg.iterations, timings["ms_per_step"], hist["iou_all"][-1],
+             int(hist["empty_steps"][0]), int(hist["rescued_steps"][0]))
     return DMTetResult(
         sdf_v=(s.detach().numpy().astype(np.float64) * cell),
         verts_vx3=verts.detach().numpy().astype(np.float64),
@@ -389,6 +615,30 @@ def optimise_dmtet(
         history=hist,
         timings=timings,
     )
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _render_pool(n: int) -> ThreadPoolExecutor | None:
+    """A shared pool of ``n`` threads (None for n < 2): the rasteriser's numba kernels release the GIL, so the
+    views of a batch render in parallel on the cores torch may use."""
+    if n < 2:
+        return None
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="torm-raster")
+    return _POOLS[n]
+
+
+def _render_views(pool: ThreadPoolExecutor | None, mv: torch.Tensor, mf: torch.Tensor, K: np.ndarray, T: np.ndarray,
+                  h: int, w: int) -> torch.Tensor:
+    """:func:`render_silhouettes` of the (V, ...) views, split over the pool's threads; same (V, h, w) result."""
+    adj = face_adjacency(mf.numpy(), len(mv))
+    if pool is None or len(K) < 2:
+        return render_silhouettes(mv, mf, K, T, h, w, adjacency_fx3=adj)
+    parts = [p for p in np.array_split(np.arange(len(K)), pool._max_workers) if len(p)]
+    futs = [pool.submit(render_silhouettes, mv, mf, K[p], T[p], h, w, adj) for p in parts]
+    return torch.cat([f.result() for f in futs])
 
 
 def _iou_all(verts: np.ndarray, faces: np.ndarray, K_all: np.ndarray, T_all: np.ndarray, masks: np.ndarray) -> float:

@@ -1,0 +1,112 @@
+"""Narrow band of a tet grid around the current surface, for evaluating the SDF field only where it matters.
+
+DMTet's mesh, and hence every mask and eikonal gradient, depends only on the SDF values and deformations of
+the vertices of *crossing* tets (tets with vertices on both sides of zero). Everything else is evaluated and
+thrown away. A :class:`Band` is built from a full evaluation of the field (SDF in cells) on the grid's vertex
+lattice:
+
+- core vertices: the vertices of crossing tets, dilated by ``rings`` lattice steps (a (2 rings + 1)^3 cube);
+- band tets: every tet with at least one core vertex; band vertices: every vertex of a band tet;
+- boundary vertices: band vertices that also belong to a tet outside the band.
+
+The band is geometric (a few cells around the surface) rather than a threshold on ``|s|``: an MLP's field is
+only distance-like near its zero level set (where the eikonal term acts) and hovers near zero elsewhere, so
+``|s| < 1`` selected about half the grid (measured: 31k of 55k vertices on syn5 with a 7.6k-face mesh).
+
+Evaluating the field on the band vertices and marching only the band tets gives exactly the full mesh as long
+as no vertex of a tet outside the band changed sign since the build: such a tet was not crossing at the build
+(crossing tets are band tets), so it can only start crossing through a sign change of one of its vertices,
+which are boundary vertices (evaluated every step, checked by :meth:`Band.boundary_flipped`) or vertices outside
+the band (at least ``rings`` cells from the surface at the build; a sign change there is new surface away from
+the current one, caught by the next periodic full evaluation and counted by :meth:`Band.misses`). The caller
+rebuilds the band on a boundary flip and every few steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class Band:
+    """A narrow band of a tet grid (all tensors on the grid's device).
+
+    Attributes:
+        tet_ids_b: (Tb,) int64 indices of the band tets into the grid's tets.
+        tets_bx4: (Tb, 4) int64 the band tets (global vertex indices).
+        vert_ids_n: (Nb,) int64 sorted indices of the band vertices.
+        boundary_n: (Nb,) bool, band vertices that also belong to a tet outside the band.
+        inside_n: (Nb,) bool, ``s < 0`` of the band vertices at the build.
+        in_band_v: (V,) bool membership of every grid vertex.
+        inside_v: (V,) bool ``s < 0`` of every grid vertex at the build.
+        rings: lattice steps the crossing tets' vertices were dilated by.
+    """
+
+    tet_ids_b: torch.Tensor
+    tets_bx4: torch.Tensor
+    vert_ids_n: torch.Tensor
+    boundary_n: torch.Tensor
+    inside_n: torch.Tensor
+    in_band_v: torch.Tensor
+    inside_v: torch.Tensor
+    rings: int
+
+    @property
+    def n_verts(self) -> int:
+        return int(self.vert_ids_n.numel())
+
+    @property
+    def n_tets(self) -> int:
+        return int(self.tet_ids_b.numel())
+
+    def boundary_flipped(self, s_n: torch.Tensor) -> bool:
+        """True when a boundary vertex's sign differs from the build (``s_n``: (Nb,) SDF of the band vertices)."""
+        b = self.boundary_n
+        return bool(((s_n[b] < 0) != self.inside_n[b]).any())
+
+    def misses(self, s_v: torch.Tensor) -> int:
+        """Vertices outside the band whose sign differs from the build (``s_v``: (V,) fresh full evaluation).
+
+        Each one may have made a tet outside the band cross zero between the build and now, i.e. a piece of
+        surface the banded evaluation did not see in the meantime.
+        """
+        return int((((s_v < 0) != self.inside_v) & ~self.in_band_v).sum())
+
+
+def build_band(tets_tx4: torch.Tensor, s_v: torch.Tensor, lattice_shape: tuple[int, int, int], rings: int) -> Band:
+    """The band around the zero level set of ``s_v`` ((V,) SDF) on the tets ``tets_tx4`` (T, 4).
+
+    ``lattice_shape``: vertices per axis ``(nx + 1, ny + 1, nz + 1)`` with vertex ``(i, j, k)`` at index
+    ``(i * (ny + 1) + j) * (nz + 1) + k`` (:attr:`TetGrid.grid_shape`); ``rings`` >= 0 lattice steps of dilation.
+    """
+    if rings < 0:
+        raise ValueError(f"build_band: rings must be >= 0 lattice steps, got {rings}")
+    n_v = s_v.shape[0]
+    if int(np.prod(lattice_shape)) != n_v:
+        raise ValueError(f"build_band: lattice {lattice_shape} does not hold the {n_v} vertices of s_v")
+    with torch.no_grad():
+        tets = tets_tx4.long()
+        inside_v = s_v < 0
+        n_in = inside_v[tets].sum(-1)
+        crossing = (n_in > 0) & (n_in < 4)
+        core = torch.zeros(n_v, dtype=torch.bool, device=s_v.device)
+        core[tets[crossing].reshape(-1)] = True
+        if rings > 0:
+            c = core.to(torch.float32).reshape(1, 1, *lattice_shape)
+            core = torch.nn.functional.max_pool3d(c, 2 * rings + 1, stride=1, padding=rings).reshape(-1) > 0
+        band_t = core[tets].any(-1)
+        tet_ids = torch.nonzero(band_t, as_tuple=True)[0]
+        tets_b = tets[tet_ids]
+        in_band = torch.zeros(n_v, dtype=torch.bool, device=s_v.device)
+        in_band[tets_b.reshape(-1)] = True
+        touches_out = torch.zeros(n_v, dtype=torch.bool, device=s_v.device)
+        touches_out[tets[~band_t].reshape(-1)] = True
+        vert_ids = torch.nonzero(in_band, as_tuple=True)[0]
+        return Band(tet_ids_b=tet_ids, tets_bx4=tets_b, vert_ids_n=vert_ids, boundary_n=touches_out[vert_ids],
+                    inside_n=inside_v[vert_ids], in_band_v=in_band, inside_v=inside_v.clone(), rings=int(rings))
+
+
+__all__ = ["Band", "build_band"]
