@@ -53,7 +53,7 @@ def test_grid_is_trial_major_and_methods_share_seeds():
 
 
 def test_unknown_names_list_valid_choices():
-    with pytest.raises(UnknownNameError, match="valid choices: rw, syn"):
+    with pytest.raises(UnknownNameError, match="valid choices: lab, rw, syn, syn_hard"):
         build_grid(BenchConfig(suite="nope"))
     with pytest.raises(UnknownNameError, match="depth, depth_fusion, oracle, torm"):
         BenchConfig(methods=("torm", "lidar"))
