@@ -193,3 +193,22 @@ def test_mlp_param_fits_start_and_takes_eikonal_steps(capture):
     assert mlp.history["iou"][0] == pytest.approx(vert.history["iou"][0], abs=0.03)
     assert all(np.isfinite(mlp.history["eikonal"])) and max(mlp.history["eikonal"]) > 0
     assert mlp.timings["mlp_fit_s"] > 0 and len(mlp.history["loss"]) == 12
+
+
+def test_progress_bar_only_on_an_interactive_stderr_at_info(monkeypatch):
+    """The DMTet bar shows on a TTY when torm logs at INFO, never in a captured (benchmark, CI) stderr."""
+    import logging
+    import sys
+
+    from torm.reconstruction import dmtet
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(dmtet.log, "isEnabledFor", lambda level: level >= logging.INFO)
+    assert not dmtet._progress_bar(5000).disable
+    assert dmtet._progress_bar(50).disable  # short refinements stay quiet
+    monkeypatch.setattr(dmtet.log, "isEnabledFor", lambda level: level >= logging.WARNING)
+    assert dmtet._progress_bar(5000).disable  # -q
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False, raising=False)
+    monkeypatch.setattr(dmtet.log, "isEnabledFor", lambda level: True)
+    bar = dmtet._progress_bar(5000)
+    assert bar.disable and list(bar) == list(range(5000))

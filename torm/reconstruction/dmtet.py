@@ -456,6 +456,17 @@ def _lr_at(cfg: DMTetConfig, it: int) -> float:
     return cfg.lr_min + 0.5 * (cfg.lr - cfg.lr_min) * (1.0 + math.cos(math.pi * frac))
 
 
+def _progress_bar(n_steps: int):
+    """``range(n_steps)`` with a tqdm bar on an interactive stderr when torm logs at INFO (off with ``-q``, in
+    benchmarks and when stderr is a file); long paper-mode runs show steps/s and the time left."""
+    import sys
+
+    from tqdm import tqdm
+
+    show = n_steps >= 200 and sys.stderr.isatty() and log.isEnabledFor(logging.INFO)
+    return tqdm(range(n_steps), desc="DMTet", unit="step", leave=False, mininterval=1.0, disable=not show)
+
+
 def optimise_dmtet(
     grid: TetGrid,
     K_vx3x3: np.ndarray,
@@ -518,7 +529,8 @@ def optimise_dmtet(
     surf = _Surface(fld, grid, cfg, clock)
     n_run = 0
     pool = _render_pool(min(nb, torch.get_num_threads()))
-    for it in range(cfg.iterations):
+    bar = _progress_bar(cfg.iterations)
+    for it in bar:
         n_run = it + 1
         lr = _lr_at(cfg, it) * lr_scale
         for g in opt.param_groups:
@@ -579,6 +591,7 @@ def optimise_dmtet(
             with clock("eval"):
                 hist["eval_iter"].append(float(it + 1))
                 hist["iou_all"].append(_iou_all(mv.detach().numpy(), mf.numpy(), K_all, T_all, masks_vxhxw))
+    bar.close()
     with clock("final"), torch.no_grad():
         s, verts = fld.evaluate()
         mv, mf = marching_tets(verts, grid.tets_tx4, s * cell)
