@@ -82,11 +82,15 @@ METHOD_NAMES = {"depth": "single-view depth (symmetric completion)", "depth_fusi
                 "oracle": "oracle (true meshes)", "torm": "TORM (GT masks)"}
 
 
-def column_name(col: str) -> str:
-    """``depth@statistical`` -> "single-view depth (symmetric completion), depth model `statistical`"."""
+def column_name(col: str, contexts: dict[str, list[dict[str, Any]]] | None = None) -> str:
+    """``depth@statistical`` -> "single-view depth (symmetric completion), depth model `statistical`"; a column
+    without ``@`` takes its depth model from the rows' contexts (``ideal`` when they name none)."""
     method, _, model = col.partition("@")
     base = METHOD_NAMES.get(method, method)
-    return f"{base}, depth model `{model or 'ideal'}`" if method.startswith("depth") else base
+    if not model:
+        named = sorted({str(c.get("depth_model")) for c in (contexts or {}).get(col, []) if c.get("depth_model")})
+        model = "/".join(named) or "ideal"
+    return f"{base}, depth model `{model}`" if method.startswith("depth") else base
 
 
 def per_object_kind(runs: dict[str, Path]) -> dict[str, dict[str, str]]:
@@ -198,7 +202,7 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
         return (order.index(m) if m in order else len(order), models.index(dm) if dm in models else len(models), c)
 
     cols = sorted(result["totals"], key=rank)
-    names = {c: column_name(c) for c in cols}
+    names = {c: column_name(c, result.get("contexts")) for c in cols}
     mode = MODE_NAMES[result["config"].get("recon_mode", "fast")]
     names["torm"] = f"{mode}, GT masks"
     names["torm_noisy"] = f"{mode}, seg. errors: {result['config'].get('noisy_preset', 'paper')}"

@@ -32,6 +32,25 @@ def test_single_view_depth_captures_one_view_without_rgb():
         backend.close()
 
 
+@pytest.mark.parametrize(("method", "segmenter", "rgb", "wants_rgb"), [
+    ("oracle", "gt", False, False), ("torm", "gt", False, False), ("torm", "noisy", False, False),
+    ("torm", "learned", False, True), ("oracle", "gt", True, True)])
+def test_methods_that_read_no_image_capture_no_rgb(method, segmenter, rgb, wants_rgb):
+    """The RGB pass (path tracing with renderer=pbr) runs only for a segmenter that reads pixels, or a recording."""
+    cfg = config.from_dict(TrialConfig, {"scenario": "rw2", "method": method},
+                           overrides=["capture.n_views=4", "capture.scale=0.25",
+                                      f"segmentation.segmenter={segmenter}"])
+    backend = make_backend(cfg)
+    try:
+        cap, info = _capture(cfg, backend, rgb=rgb)
+        assert len(cap) == info["views_captured"] == 4
+        assert all((v.rgb is not None) == wants_rgb for v in cap.views)
+        assert all(v.mask is not None and v.depth is not None for v in cap.views)
+        assert info["channels"] == ("all" if wants_rgb else ["depth", "mask"])
+    finally:
+        backend.close()
+
+
 def test_depth_fusion_perceives_the_opaque_cup_from_every_view():
     cfg = _cfg("depth_fusion", "ideal")
     backend = make_backend(cfg)

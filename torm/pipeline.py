@@ -276,12 +276,19 @@ def _gripper(backend: Any):
 
 #: Channels each depth baseline captures (it pays for nothing else): sensor depth and the GT masks.
 DEPTH_CHANNELS = ("sensor_depth", "mask")
+#: Channels of a capture no image is read from (the oracle; TORM with GT or error-model silhouettes): the
+#: masks and the exact depth (Table II depth metrics), no RGB, which is the costly pass with ``renderer=pbr``.
+MASK_CHANNELS = ("depth", "mask")
+#: Segmenters that read the RGB images (every other one works from the simulator's masks).
+IMAGE_SEGMENTERS = ("learned", "grounded_sam")
 
 
-def _capture(config: TrialConfig, backend: Any) -> tuple[Capture, dict[str, Any]]:
+def _capture(config: TrialConfig, backend: Any, rgb: bool = False) -> tuple[Capture, dict[str, Any]]:
     """The capture ``config.method`` needs, and what was captured (views, channels, layout indices).
 
-    ``torm`` / ``oracle``: the full ``capture.n_views`` RGB capture. ``depth``: one view of the layout (the
+    ``torm`` with an image segmenter (:data:`IMAGE_SEGMENTERS`): the full ``capture.n_views`` capture; ``torm``
+    with GT / error-model masks and ``oracle``: the same views without RGB (:data:`MASK_CHANNELS`) unless
+    ``rgb`` (a trial being recorded shows its images). ``depth``: one view of the layout (the
     most top-down one, or ``depth_view``), sensor depth + mask only. ``depth_fusion``: every view of the
     layout (the trajectory TORM flies, so both see the same camera poses), sensor depth + mask only. A
     backend without partial captures (``capture_views``) captures everything and the baseline takes a subset.
@@ -305,14 +312,21 @@ def _capture(config: TrialConfig, backend: Any) -> tuple[Capture, dict[str, Any]
     if config.method == "depth_fusion" and partial:
         cap = backend.capture_views(n, list(range(n)), DEPTH_CHANNELS)
         return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": list(DEPTH_CHANNELS)}
+    reads_images = config.method == "torm" and config.segmentation.segmenter in IMAGE_SEGMENTERS
+    if not (reads_images or rgb) and hasattr(backend, "capture_views"):
+        cap = backend.capture_views(n, list(range(n)), MASK_CHANNELS)
+        return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": list(MASK_CHANNELS)}
     cap = backend.capture(n)
     return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": "all"}
 
 
-def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: dict[str, float]) -> Perception:
-    """Capture and turn the capture into per-object geometry with ``config.method``."""
+def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: dict[str, float],
+             rgb: bool = False) -> Perception:
+    """Capture and turn the capture into per-object geometry with ``config.method``.
+
+    ``rgb``: capture the RGB images even when the method reads none (for a recording)."""
     t = time.perf_counter()
-    capture, cap_info = _capture(config, backend)
+    capture, cap_info = _capture(config, backend, rgb)
     cap_info["capture_s"] = time.perf_counter() - t
     timings["capture"] = timings.get("capture", 0.0) + cap_info["capture_s"]
     log.info("capture: %d views in %.1f s", len(capture.views), cap_info["capture_s"])
@@ -433,7 +447,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     gt = backend.ground_truth
     names = _object_names(backend)
     try:
-        per = perceive(config, backend, rng, timings)
+        per = perceive(config, backend, rng, timings, rgb=recorder is not None)
     except ReconstructionError as exc:
         record["failure"] = "reconstruction_failed"
         record["message"] = str(exc)
@@ -472,7 +486,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             continue
         if config.re_perceive and n_pick > 0:
             try:
-                per = perceive(config, backend, rng, timings)
+                per = perceive(config, backend, rng, timings, rgb=recorder is not None)
             except ReconstructionError as exc:  # keep planning on the previous reconstruction
                 log.warning("re-perception before pick %d failed (%s); using the previous one", n_pick, exc)
             else:
