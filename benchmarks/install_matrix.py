@@ -50,7 +50,7 @@ def lower_bounds(pyproject: Path) -> dict[str, str]:
     """``name -> lowest allowed version`` of every direct dependency (core + dev extra) with a ``>=`` bound."""
     text = pyproject.read_text()
     deps = re.search(r"^dependencies = \[(.*?)^\]", text, re.S | re.M).group(1)
-    dev = re.search(r"^dev = \[(.*?)\]", text, re.M).group(1)
+    dev = re.search(r"^dev = \[(.*?)\]$", text, re.S | re.M).group(1)
     out = {}
     for spec in re.findall(r'"([^"]+)"', deps + dev):
         m = re.match(r"([A-Za-z0-9_.\-\[\]]+?)\s*(?:\[[^\]]*\])?\s*>=\s*([0-9][^,\s;]*)", spec)
