@@ -116,7 +116,8 @@ def run_profile(name: str, prof: dict, keep: bool) -> dict:
             shutil.rmtree(venv, ignore_errors=True)
         return {**out, "status": "install_failed", "log_tail": log.read_text()[-3000:]}
     freeze = subprocess.run([*pip, "list", "--format", "json"], capture_output=True, text=True, env=env).stdout
-    have = {d["name"].lower(): d["version"] for d in json.loads(freeze or "[]")}
+    # PEP 503 names: pip lists dm-control as "dm_control"
+    have = {re.sub(r"[-_.]+", "-", d["name"]).lower(): d["version"] for d in json.loads(freeze or "[]")}
     out["versions"] = {p: have.get(p) for p in REPORTED}
     out["python_version"] = subprocess.run([str(venv / "bin" / "python"), "-c", "import platform; print("
                                             "platform.python_version())"], capture_output=True, text=True
