@@ -447,7 +447,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
     gt = backend.ground_truth
     names = _object_names(backend)
     try:
-        per = perceive(config, backend, rng, timings, rgb=recorder is not None)
+        per = perceive(config, backend, rng, timings, rgb=bool(getattr(recorder, "wants_rgb", False)))
     except ReconstructionError as exc:
         record["failure"] = "reconstruction_failed"
         record["message"] = str(exc)
@@ -486,7 +486,7 @@ def _run(config: TrialConfig, backend: Any, rng: np.random.Generator, timings: d
             continue
         if config.re_perceive and n_pick > 0:
             try:
-                per = perceive(config, backend, rng, timings, rgb=recorder is not None)
+                per = perceive(config, backend, rng, timings, rgb=bool(getattr(recorder, "wants_rgb", False)))
             except ReconstructionError as exc:  # keep planning on the previous reconstruction
                 log.warning("re-perception before pick %d failed (%s); using the previous one", n_pick, exc)
             else:

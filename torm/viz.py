@@ -213,12 +213,15 @@ class TrialRecorder:
     - :meth:`finish`: the TCP path once, as one static line strip, and the outcome per object as a text document.
 
     ``best_effort=True`` (the benchmark runner) logs and swallows every recording error so that a recording
-    problem never fails a trial.
+    problem never fails a trial, and leaves the capture as the method needs it (``wants_rgb`` False: a recorded
+    benchmark trial captures what an unrecorded one does); otherwise the trial also captures the RGB images for
+    the recording when its method reads none (``wants_rgb`` True).
     """
 
     def __init__(self, path: str, period: float = 0.05, best_effort: bool = False,
                  recording_id: str | None = None) -> None:
         self.best_effort = best_effort
+        self.wants_rgb = not best_effort
         self.period = period
         self._next = -np.inf
         self._tcp: list[np.ndarray] = []
