@@ -49,11 +49,11 @@ from torm.bench.results import package_versions  # noqa: E402
 from torm.bench.spec import DEFAULT_TRIAL_FN  # noqa: E402
 from torm.bench.stats import difference_interval, wilson_interval  # noqa: E402
 from torm.errors import BenchmarkError  # noqa: E402
+from torm.pipeline import REALISM_FACTORS as FACTORS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "runs"
-FACTORS = ("contact", "grip_force", "objects", "calibration", "execution")
 METHOD_NAMES = {"torm": "TORM", "depth": "depth baseline", "oracle": "oracle (true meshes)"}
 
 #: The paper's Table III (real robot, 10 trials per scenario). TORM: trials per scenario; GraspNet (the
