@@ -15,13 +15,14 @@ from onnx import TensorProto, helper
 from torm.errors import CaptureError, ConfigError, ModelFileError
 from torm.segmentation import SEGMENTERS, make_segmenter
 from torm.segmentation.instances import extract_instances
-from torm.segmentation.learned import DEFAULT_MODEL, LearnedConfig, LearnedSegmenter
+from torm.segmentation.learned import DEFAULT_MODEL, LearnedConfig, LearnedSegmenter, foreground_mask
 from torm.segmentation.quality import mask_quality
 from torm.types import CameraView, Capture
 
 DATA = Path(__file__).parent / "data"
-#: the shipped model reaches union-silhouette IoU 0.838 on this committed PBR test view (a held-out test_layouts
-#: render, 320x192 window); the bound leaves room for onnxruntime differences across versions
+#: the shipped model reaches union-silhouette IoU 0.847 on this committed PBR test view (a held-out test_layouts
+#: render of the first renderer version, 320x192 window; the model before it: 0.838); the bound leaves room for
+#: onnxruntime differences across versions
 MIN_SHIPPED_IOU = 0.75
 
 
@@ -50,6 +51,10 @@ def test_shipped_model_segments_the_committed_render():
     # a blank table-coloured image has (almost) no foreground
     blank = np.full_like(rgb, np.median(rgb.reshape(-1, 3), axis=0).astype(np.uint8))
     assert (seg.segment_image(blank)[0] > 0).mean() < 0.01
+    # the render benchmark's hook: the shipped model's default settings, instances merged
+    fg = foreground_mask(rgb)
+    assert fg.dtype == bool and fg.shape == gt.shape
+    assert np.array_equal(fg, LearnedSegmenter().segment_image(rgb)[0] > 0)
 
 
 def _onnx(path: Path, in_name: str = "image", out_channels: int = 2) -> Path:
@@ -205,3 +210,18 @@ def test_crop_intrinsics_are_a_window_of_the_full_camera():
     np.testing.assert_allclose(off, off[:1].repeat(2, 0))
     assert np.allclose(off, np.round(off)) and 0 <= off[0, 0] <= 640 - 320 and 0 <= off[0, 1] <= 360 - 192
     assert Kc[0, 0] == Kf[0, 0]
+
+
+def test_parallel_shard_rendering_gives_the_same_dataset(tmp_path):
+    """Shards rendered by spawned worker processes equal the sequential ones (seeds depend on the shard only)."""
+    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
+
+    recipe = DataRecipe(renderer="mujoco", width=64, height=48, full_width=128, full_height=72, n_procedural=6,
+                        objects_per_scene=(1, 2), views_per_scene=1, scenes_per_shard=1, shards={"train": 2})
+    one = generate(recipe, tmp_path / "seq", splits=("train",), progress=False, workers=1)
+    two = generate(recipe, tmp_path / "par", splits=("train",), progress=False, workers=2)
+    assert [p.name for p in one] == [p.name for p in two] == ["shard_00000.npz", "shard_00001.npz"]
+    a, b = load_split(tmp_path / "seq", "train"), load_split(tmp_path / "par", "train")
+    assert np.array_equal(a["mask"], b["mask"]) and np.array_equal(a["rgb"], b["rgb"]) and a["mask"].any()
+    with pytest.raises(ConfigError, match="workers"):
+        generate(recipe, tmp_path / "bad", workers=0)

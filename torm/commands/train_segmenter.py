@@ -34,6 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="ONNX output (default <work>/learned_seg.onnx)")
     p.add_argument("--install", action="store_true", help="write the ONNX + card into the package (models/)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: train.threads)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes rendering missing shards, one core each (the data do not depend on it)")
     p.add_argument("--no-eval", dest="evaluate", action="store_false", help="skip the held-out evaluation")
     p.add_argument("--export-only", action="store_true",
                    help="no more training steps: export the best checkpoint of --work as it stands (resume later)")
@@ -57,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     data_dir = Path(args.data) if args.data else Path("runs/seg_data") / spec.data.renderer
     out = DEFAULT_MODEL if args.install else Path(args.out) if args.out else Path(args.work) / "learned_seg.onnx"
     card = run_training(spec, data_dir, Path(args.work), out, evaluate_after=args.evaluate,
-                        export_only=args.export_only)
+                        export_only=args.export_only, workers=args.workers)
     print_json({"out": str(out), "card": str(out.with_suffix(".json")), "training": card["training"],
                 "held_out_metrics": {k: {m: v.get(m) for m in ("silhouette_iou_mean", "object", "held_out_objects")}
                                      for k, v in card.get("held_out_metrics", {}).items() if isinstance(v, dict)}})

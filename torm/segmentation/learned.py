@@ -141,3 +141,18 @@ class LearnedSegmenter(Segmenter):
         if capture.has_masks:
             info["quality"] = mask_quality(out, capture.masks())
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
+
+
+_SHIPPED: list[LearnedSegmenter] = []
+
+
+def foreground_mask(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) bool foreground of the shipped model on one (H, W, 3) uint8 RGB image (instances merged).
+
+    A ``MODULE:FUNCTION`` hook for ``benchmarks/render.py --segmenter torm.segmentation.learned:foreground_mask``:
+    the render-noise agreement measured with the segmenter the pipeline runs, not a proxy. The session is
+    created on the first call (the shipped ONNX file, one onnxruntime thread per core) and kept.
+    """
+    if not _SHIPPED:
+        _SHIPPED.append(LearnedSegmenter())
+    return _SHIPPED[0].segment_image(rgb)[0] > 0

@@ -215,10 +215,24 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
     return path
 
 
-def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, progress: bool = True) -> list[Path]:
-    """Render every missing shard of ``splits`` (resumable; existing shards are kept)."""
+def _render_job(args: tuple[DataRecipe, str, int, str]) -> str:
+    """One shard in a worker process (single-threaded renders; one process per core)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    recipe, split, shard, root = args
+    return str(generate_shard(recipe, split, shard, Path(root)))
+
+
+def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, progress: bool = True,
+             workers: int = 1) -> list[Path]:
+    """Render every missing shard of ``splits`` (resumable; existing shards are kept).
+
+    ``workers`` > 1 renders shards in that many spawned processes (one core each). Shard contents depend only on
+    the recipe and the shard index (:func:`scene_seed`), so the dataset is the same for any ``workers``.
+    """
     from tqdm import tqdm
 
+    if workers < 1:
+        raise ConfigError(f"generate: workers = {workers} must be >= 1")
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     rec_path = root / "recipe.json"
@@ -227,6 +241,16 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
         raise ConfigError(f"{root} holds shards of another data recipe ({rec_path}); use another folder or delete it")
     rec_path.write_text(doc)
     jobs = [(s, i) for s in splits for i in range(recipe.shards.get(s, 0))]
+    todo = [(s, i) for s, i in jobs if not (root / s / f"shard_{i:05d}.npz").exists()]
+    if workers > 1 and len(todo) > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=mp.get_context("spawn")) as ex:
+            done = ex.map(_render_job, [(recipe, s, i, str(root)) for s, i in todo])
+            for _ in tqdm(done, total=len(todo), desc="render shards", unit="shard", disable=not progress):
+                pass
+        return [root / s / f"shard_{i:05d}.npz" for s, i in jobs]
     out = []
     for s, i in tqdm(jobs, desc="render shards", unit="shard", disable=not progress):
         out.append(generate_shard(recipe, s, i, root))

@@ -57,11 +57,12 @@ def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[st
 
 
 def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, progress: bool = True,
-        evaluate_after: bool = True, export_only: bool = False) -> dict[str, Any]:
+        evaluate_after: bool = True, export_only: bool = False, workers: int = 1) -> dict[str, Any]:
     """All stages; returns the model card (also written to ``out_path.with_suffix('.json')``).
 
     ``export_only``: no further training steps; export the best checkpoint of ``work_dir`` as it stands (the card
     then records ``steps`` < ``train.steps``; running again without it resumes the training).
+    ``workers``: processes rendering the missing shards (the data do not depend on it).
     """
     import torch
 
@@ -69,7 +70,7 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
 
     torch.set_num_threads(spec.train.threads)
     t0 = time.perf_counter()
-    generate(spec.data, data_dir, progress=progress)
+    generate(spec.data, data_dir, progress=progress, workers=workers)
     t_data = time.perf_counter() - t0
     tr, va = load_split(data_dir, "train"), load_split(data_dir, "val")
     if export_only:
