@@ -151,7 +151,7 @@ def foreground_mask(rgb: np.ndarray) -> np.ndarray:
 
     A ``MODULE:FUNCTION`` hook for ``benchmarks/render.py --segmenter torm.segmentation.learned:foreground_mask``:
     the render-noise agreement measured with the segmenter the pipeline runs, not a proxy. The session is
-    created on the first call (the shipped ONNX file, one onnxruntime thread per core) and kept.
+    created on the first call (the shipped ONNX file, onnxruntime's default threads) and kept.
     """
     if not _SHIPPED:
         _SHIPPED.append(LearnedSegmenter())

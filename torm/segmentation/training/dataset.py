@@ -163,13 +163,18 @@ def scene_seed(recipe: DataRecipe, split: str, shard: int, j: int) -> int:
     return int(recipe.seed * 10_000_000 + _SPLIT_SALT[split] * 1_000_000 + shard * 1000 + j)
 
 
+def shard_path(root: Path, split: str, shard: int) -> Path:
+    """Where shard ``shard`` of ``split`` lives under ``root``."""
+    return Path(root) / split / f"shard_{shard:05d}.npz"
+
+
 def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Path:
     """Render shard ``shard`` of ``split`` into ``root`` unless it exists; returns its path."""
     from sim.scenes.scenario import Scenario
     from sim.world import build_world
     from torm.segmentation.training.render import render_scene
 
-    path = Path(root) / split / f"shard_{shard:05d}.npz"
+    path = shard_path(root, split, shard)
     if path.exists():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -241,7 +246,7 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
         raise ConfigError(f"{root} holds shards of another data recipe ({rec_path}); use another folder or delete it")
     rec_path.write_text(doc)
     jobs = [(s, i) for s in splits for i in range(recipe.shards.get(s, 0))]
-    todo = [(s, i) for s, i in jobs if not (root / s / f"shard_{i:05d}.npz").exists()]
+    todo = [(s, i) for s, i in jobs if not shard_path(root, s, i).exists()]
     if workers > 1 and len(todo) > 1:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -250,7 +255,7 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
             done = ex.map(_render_job, [(recipe, s, i, str(root)) for s, i in todo])
             for _ in tqdm(done, total=len(todo), desc="render shards", unit="shard", disable=not progress):
                 pass
-        return [root / s / f"shard_{i:05d}.npz" for s, i in jobs]
+        return [shard_path(root, s, i) for s, i in jobs]
     out = []
     for s, i in tqdm(jobs, desc="render shards", unit="shard", disable=not progress):
         out.append(generate_shard(recipe, s, i, root))
