@@ -6,7 +6,8 @@ and 2 render threads:
 1. **Reference**: ``--ref-spp`` (256) spp renders of ``--noise-views`` views, plus the same views with the
    objects removed (the empty table, for the proxy segmenter); linear radiance cached under
    ``$TORM_CACHE_DIR/bench_render``: a re-run reuses them.
-2. **spp sweep** (``--spps``: 4, 16, 64, the ldsampler's square powers of two): wall and CPU time per view
+2. **spp sweep** (``--spps``: 4, 16, 64, the ldsampler's square powers of two; counts in between with another
+   sampler, ``36:multijitter``): wall and CPU time per view
    (render + tone map + denoise, median over the views, after one
    warm-up render that compiles the kernels) and noise against the reference for every denoiser: RMSE in 8-bit
    grey levels (whole image and inside the glass silhouettes), PSNR, Canny edge F1 (1 px tolerance) and the
@@ -60,6 +61,16 @@ CAPTURE_CPU_CAP_S = 6.0
 RESOLUTIONS = ((320, 180), (640, 360), (1280, 720))
 
 
+def _spp_entry(text: str) -> tuple[int, str]:
+    """``"36:multijitter"`` -> ``(36, "multijitter")``; a bare count uses the ldsampler."""
+    spp, _, sampler = text.partition(":")
+    try:
+        return int(spp), sampler or "ldsampler"
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--spps entry {text!r}: expected SPP or SPP:SAMPLER, e.g. 16 or 36:multijitter") from None
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="tiny smoke run: 160x90, 2 noise views, 4 capture views")
@@ -67,7 +78,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--cache", type=Path, default=None, help="render cache for the reference (default TORM_CACHE_DIR)")
     p.add_argument("--scenario", default="rw3")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--spps", nargs="+", type=int, default=[4, 16, 64], help="ldsampler: 4, 16, 64, 256...")
+    p.add_argument("--spps", nargs="+", type=_spp_entry,
+                   default=[(4, "ldsampler"), (16, "ldsampler"), (64, "ldsampler")],
+                   help="SPP or SPP:SAMPLER entries; the ldsampler takes 4, 16, 64, 256...; other counts need "
+                        "another sampler, e.g. 36:multijitter")
     p.add_argument("--ref-spp", type=int, default=256)
     p.add_argument("--noise-views", type=int, default=3)
     p.add_argument("--capture-views", type=int, default=50)
@@ -77,7 +91,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=bc.THREADS)
     a = p.parse_args(argv)
     if a.quick:
-        a.spps, a.ref_spp, a.noise_views, a.capture_views, a.scale = [4], 16, 2, 4, 0.125
+        a.spps, a.ref_spp, a.noise_views, a.capture_views, a.scale = [(4, "ldsampler")], 16, 2, 4, 0.125
     return a
 
 
@@ -219,8 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     for dn in DENOISERS:
         denoise(refs[0], dn, 5.0)
     rows = []
-    for spp in a.spps:
-        s = dataclasses.replace(base, spp=spp, cache=False)
+    for spp, sampler in a.spps:
+        s = dataclasses.replace(base, spp=spp, sampler=sampler, cache=False)
         r.settings = s
         t = time.perf_counter()
         r.render(cams[:1], instance=False)
@@ -243,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
                     c_post.append(c.cpu)
                 m = [noise_metrics(img, ref, g, sg, sr) for img, ref, g, sg, sr
                      in zip(imgs, refs, glass, segs, seg_refs, strict=True)]
-                row = {"spp": spp, "denoise": dn, "strength": strength,
+                row = {"spp": spp, "sampler": sampler, "denoise": dn, "strength": strength,
                        "s_per_view": float(np.median(np.add(t_render, t_post))),
                        "render_s": float(np.median(t_render)), "post_s": float(np.median(t_post)),
                        "cpu_s_per_view": float(np.median(np.add(c_render, c_post))),
@@ -251,20 +265,21 @@ def main(argv: list[str] | None = None) -> int:
                        **{k: _mean([x[k] for x in m]) for k in m[0]},
                        "proxy_iou_min": float(min(x["proxy_iou"] for x in m))}
                 rows.append(row)
-                log.info("spp %d %s %.0f: %.2f s/view, rmse %.1f, proxy IoU min %.3f", spp, dn, strength,
+                log.info("spp %d %s %s %.0f: %.2f s/view, rmse %.1f, proxy IoU min %.3f", spp, sampler, dn, strength,
                          row["s_per_view"], row["rmse"], row["proxy_iou_min"])
     doc["sweep"] = rows
     ok = [x for x in rows if x["proxy_iou_min"] >= a.agreement]
     chosen = min(ok, key=lambda x: x["cpu_s_per_view"]) if ok else max(rows, key=lambda x: x["proxy_iou_min"])
-    doc["chosen"] = {"spp": chosen["spp"], "denoise": chosen["denoise"], "strength": chosen["strength"],
+    doc["chosen"] = {"spp": chosen["spp"], "sampler": chosen["sampler"], "denoise": chosen["denoise"],
+                     "strength": chosen["strength"],
                      "meets_agreement": bool(ok), "agreement": a.agreement, "s_per_view": chosen["s_per_view"]}
     default = PbrSettings()
     doc["default_settings"] = {"spp": default.spp, "denoise": default.denoise,
                                "denoise_strength": default.denoise_strength}
-    dflt = [x for x in rows if (x["spp"], x["denoise"], x["strength"]) ==
-            (default.spp, default.denoise, default.denoise_strength)]
+    dflt = [x for x in rows if (x["spp"], x["sampler"], x["denoise"], x["strength"]) ==
+            (default.spp, default.sampler, default.denoise, default.denoise_strength)]
     doc["default_row"] = dflt[0] if dflt else None
-    chosen_s = dataclasses.replace(base, spp=chosen["spp"], denoise=chosen["denoise"],
+    chosen_s = dataclasses.replace(base, spp=chosen["spp"], sampler=chosen["sampler"], denoise=chosen["denoise"],
                                    denoise_strength=chosen["strength"] or default.denoise_strength, cache=False)
 
     # 3. resolution sweep at the chosen setting
@@ -285,7 +300,8 @@ def main(argv: list[str] | None = None) -> int:
         cap_s = dataclasses.replace(chosen_s, cache=True)
         if chosen["cpu_s_per_view"] > CAPTURE_CPU_CAP_S:  # keep the run bounded: capture at the default setting
             cap_s = dataclasses.replace(default, threads=a.threads, cache=True)
-        doc["capture_settings"] = {"spp": cap_s.spp, "denoise": cap_s.denoise, "strength": cap_s.denoise_strength}
+        doc["capture_settings"] = {"spp": cap_s.spp, "sampler": cap_s.sampler, "denoise": cap_s.denoise,
+                                   "strength": cap_s.denoise_strength}
         rr = MitsubaRenderer(world, cap_s, cache=cache)
         with SimCameraRig.from_world(world, rig_cfg, rgb_renderer=rr) as rig:
             with Clock() as c_cap:
@@ -334,14 +350,17 @@ def markdown(doc: dict[str, Any]) -> str:
            f"integrator `{rend['integrator']}`, max depth {rend['max_depth']}, {c['threads']} threads. "
            f"Reference: {doc['reference']['spp']} spp. Segmenter proxy: {doc['reference']['proxy']}; "
            f"agreement = IoU of its masks on the test render vs on the reference.\n", bc.context_md(c),
-           f"\n**Chosen**: {ch['spp']} spp, denoise `{ch['denoise']}` (strength {ch['strength']}): "
+           f"\n**Chosen**: {ch['spp']} spp ({ch.get('sampler', 'ldsampler')}), denoise `{ch['denoise']}` "
+           f"(strength {ch['strength']}): "
            f"{ch['s_per_view']:.2f} s per view; proxy agreement >= {ch['agreement']} on every view: "
            f"{ch['meets_agreement']}.\n",
            "\n## spp sweep (median per view; noise vs the reference, mean over views)\n"]
-    rows = [[x["spp"], x["denoise"], x["strength"], x["s_per_view"], x["cpu_s_per_view"], x["render_s"], x["post_s"],
+    rows = [[x["spp"], x.get("sampler", "ldsampler"), x["denoise"], x["strength"], x["s_per_view"],
+             x["cpu_s_per_view"], x["render_s"], x["post_s"],
              x["rmse"], x["rmse_glass"], x["psnr_db"], x["edge_f1"], x["proxy_iou"], x["proxy_iou_min"]]
             for x in doc["sweep"]]
-    out.append(bc.md_table(["spp", "denoise", "strength", "wall s/view", "CPU s/view", "render s", "post s", "RMSE",
+    out.append(bc.md_table(["spp", "sampler", "denoise", "strength", "wall s/view", "CPU s/view", "render s", "post s",
+                            "RMSE",
                             "RMSE glass", "PSNR dB", "edge F1", "proxy IoU", "proxy IoU min"], rows, 3))
     out.append("\nCPU s/view counts every thread: on 2 free cores the wall time is at least CPU s / 2.\n")
     out.append("\n## Resolution (chosen setting)\n")
