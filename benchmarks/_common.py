@@ -181,6 +181,8 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
             return int(o)
         if isinstance(o, np.bool_):
             return bool(o)
+        if isinstance(o, Path):  # e.g. a list of folders among the arguments
+            return str(o)
         return o
 
     path.parent.mkdir(parents=True, exist_ok=True)
