@@ -63,9 +63,14 @@ RESOLUTIONS = ((320, 180), (640, 360), (1280, 720))
 
 def _spp_entry(text: str) -> tuple[int, str]:
     """``"36:multijitter"`` -> ``(36, "multijitter")``; a bare count uses the ldsampler."""
+    from torm.capture.render_settings import SAMPLERS
+
     spp, _, sampler = text.partition(":")
+    sampler = sampler or "ldsampler"
+    if sampler not in SAMPLERS:
+        raise argparse.ArgumentTypeError(f"--spps entry {text!r}: unknown sampler {sampler!r}; valid: {SAMPLERS}")
     try:
-        return int(spp), sampler or "ldsampler"
+        return int(spp), sampler
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"--spps entry {text!r}: expected SPP or SPP:SAMPLER, e.g. 16 or 36:multijitter") from None
