@@ -279,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
                      "strength": chosen["strength"],
                      "meets_agreement": bool(ok), "agreement": a.agreement, "s_per_view": chosen["s_per_view"]}
     default = PbrSettings()
-    doc["default_settings"] = {"spp": default.spp, "denoise": default.denoise,
+    doc["default_settings"] = {"spp": default.spp, "sampler": default.sampler, "denoise": default.denoise,
                                "denoise_strength": default.denoise_strength}
     dflt = [x for x in rows if (x["spp"], x["sampler"], x["denoise"], x["strength"]) ==
             (default.spp, default.sampler, default.denoise, default.denoise_strength)]
