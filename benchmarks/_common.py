@@ -215,4 +215,4 @@ def context_md(ctx: dict[str, Any]) -> str:
             f"- torch threads: {ctx['threads']}; CPU count: {ctx['machine']['cpu_count']}; load average at start: "
             f"{', '.join(f'{x:.2f}' for x in ctx['load_avg_start'])}; contended (1-min load > 1.5): "
             f"{ctx['contended']}\n"
-            f"- arguments: `{json.dumps(ctx['args'])}`\n")
+            f"- arguments: `{json.dumps(ctx['args'])}`\n" + (f"- note: {ctx['note']}\n" if ctx.get("note") else ""))

@@ -44,6 +44,15 @@ RECORDED_CASES: dict[str, dict[str, Any]] = {
         "n_views": 12, "hw": (360, 480), "fov_x_deg": 50.0, "radius": 0.45, "elevations_deg": (10.0, 50.0),
         "aim_offset": [], "alpha": True,
     },
+    "bottles20": {
+        "description": "20 views (16 input + 4 held out) at 640x480, a bottle-like cylinder, a capsule and a box "
+                       "standing on z = 0 side by side, no table given, soft greyscale masks (a validation case: "
+                       "not used to choose any default)",
+        "objects": [("cylinder", (0.035, 0.14), (-0.06, -0.03, 0.07)), ("capsule", (0.022, 0.05), (0.05, -0.04, 0.047)),
+                    ("box", (0.05, 0.07, 0.09), (0.0, 0.08, 0.045))],
+        "n_views": 20, "hw": (480, 640), "fov_x_deg": 55.0, "radius": 0.55, "elevations_deg": (15.0, 60.0),
+        "aim_offset": [], "alpha": False,
+    },
     "dense100": {
         "description": "100 views (80 input + 20 held out) at 200x200 on a sphere around a torus knot-like "
                        "shape (two interlocked tori), exact soft masks",

@@ -43,6 +43,12 @@ fine vote candidates               0 and 8 % of the views      rw4, noisy "paper
                                                                noisy "paper" masks
 ``cell_px`` / band levels          1.5 px -> 192 cells here    per-stage ablation: Chamfer flat from 192 to
                                                                384 cells at 3x the time
+``facet_frac``                     0.3 of the hull's facet     per-level ablation on the recorded cases: 9
+                                   width (:func:`hull_facet_m`) views (glass10) Chamfer 3.059 mm at 48 cells,
+                                                               3.072 at 192; 8 views (ring8) 1.907 at 48, 2.001
+                                                               at 96; rw4 (40 views) 0.836 at 192, 0.871 at 96.
+                                                               Checked on bottles20 (16 views, not used to choose)
+                                                               and all 20 sim scenes (unchanged: 192 cells)
 ``band``                           0.4 cell diagonals          identical meshes at 0.25-1.0 on rw4 and
                                                                syn12 (closure pass as the safety net)
 ``max_band_cells``                 120 000                     2x the largest sim scene (syn12: 57.5k surface
@@ -71,6 +77,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
+from scipy import ndimage
 
 from torm.errors import CaptureError, ConfigError, ReconstructionError
 from torm.mesh import sample_objects
@@ -146,6 +153,9 @@ class ReconstructionConfig:
         band_levels: 2x refinements of the band; None = :func:`auto_band_levels`.
         cell_px: auto levels: the finest cell projects to about this many pixels at the median view depth.
         max_band_res, min_band_res: auto levels give at most / at least this many cells along the longest axis.
+        facet_frac: auto levels: the finest cell is no smaller than this fraction of the hull's facet width
+            (:func:`hull_facet_m`; about 1 cm for a 4.5 cm glass seen by 9 views), whatever ``cell_px`` and
+            ``min_band_res`` ask; 0 = off. With many views the pixel rule decides.
         max_band_cells: the band stops refining before its finest level would hold more surface cells than this
             (time and mesh size grow with them; the largest sim scene, syn12, needs 58k at 192 cells); None = no cap.
         band: cells within this many cell diagonals of the surface are refined.
@@ -183,6 +193,7 @@ class ReconstructionConfig:
     max_band_res: int = 384
     min_band_res: int = 96
     max_band_cells: int | None = 120_000
+    facet_frac: float = 0.3
     band: float = 0.4
     carve_res: int = 128
     hull_mask_res: int = 0
@@ -222,6 +233,8 @@ class ReconstructionConfig:
             raise ConfigError("ReconstructionConfig: vote_views and fine_vote_views are view counts >= 0")
         if self.band_levels is not None and not 0 <= self.band_levels <= 6:
             raise ConfigError(f"ReconstructionConfig.band_levels must be in [0, 6] (or null), got {self.band_levels}")
+        if not 0.0 <= self.facet_frac <= 4.0:
+            raise ConfigError(f"ReconstructionConfig.facet_frac must be in [0, 4] (0 = off), got {self.facet_frac}")
         if not (self.cell_px > 0 and self.band > 0 and 0 < self.repair_coverage <= 1):
             raise ConfigError("ReconstructionConfig: cell_px > 0, band > 0 and repair_coverage in (0, 1] required")
         if self.hull_mask_res < 0 or (0 < self.hull_mask_res < 8) or self.mask_res < 8:
@@ -270,20 +283,55 @@ def view_depths(Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, point_3: np
     return np.einsum("vj,j->v", T_cw[:, 2, :3], point_3) + T_cw[:, 2, 3]
 
 
+def hull_facet_m(objects_points: list[np.ndarray], step_m: float, T_world_cam_vx4x4: np.ndarray) -> float:
+    """Typical facet width (m) of the visual hull: the median over objects of ``r * delta``.
+
+    ``r`` is the radius of the largest ball inside the object (the maximum of the Euclidean distance
+    transform of its lattice points ``(P, 3)`` m, spacing ``step_m``, less half a step; a torus gives its
+    tube's radius, a cup its outer radius as its hull fills the cavity) and ``delta`` (rad) the median angle
+    between a view's direction from the object's centre and its
+    nearest neighbour's. Two views ``delta`` apart bound a round cross-section of radius ``r`` by tangent
+    planes that meet about ``r * delta`` apart: the hull is made of facets that wide, and silhouettes say
+    nothing about the surface at a finer scale between views. 0.0 when there is no object or fewer than 2
+    views.
+    """
+    C = np.asarray(T_world_cam_vx4x4, dtype=np.float64)[:, :3, 3]
+    if len(C) < 2:
+        return 0.0
+    out = []
+    for pts in objects_points:
+        if len(pts) == 0:
+            continue
+        ijk = np.round((pts - pts.min(0)) / step_m).astype(np.int64) + 1
+        occ = np.zeros(tuple(ijk.max(0) + 2), dtype=bool)
+        occ[tuple(ijk.T)] = True
+        r = step_m * (float(ndimage.distance_transform_edt(occ).max()) - 0.5)
+        d = C - pts.mean(0)
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        cos = d @ d.T
+        np.fill_diagonal(cos, -1.0)
+        out.append(r * float(np.median(np.arccos(np.clip(cos.max(1), -1.0, 1.0)))))
+    return float(np.median(out)) if out else 0.0
+
+
 def auto_band_levels(bounds_2x3: np.ndarray, Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, base_res: int,
-                     cell_px: float, max_res: int, min_res: int = 96) -> int:
+                     cell_px: float, max_res: int, min_res: int = 96, facet_cell_m: float = 0.0) -> int:
     """2x refinements so that the finest cell projects to about ``cell_px`` pixels at the median depth of the
     box centre, with at least ``min_res`` and at most ``max_res`` cells along the longest axis (the sub-cell
     accuracy of the projective SDF still pays below a pixel: 80 px masks, 16 views: input-view IoU 0.883 at
-    48 cells, 0.914 at 96, 0.920 at 192)."""
+    48 cells, 0.914 at 96, 0.920 at 192); then no finer than ``facet_cell_m`` (m; ``facet_frac`` times
+    :func:`hull_facet_m`), the scale below which few views carry no information, whatever the pixels say.
+    Each bound rounds to the nearest level in log2 (a finest cell within sqrt(2) of the target)."""
     b = np.asarray(bounds_2x3, dtype=np.float64)
     z = view_depths(Ks_vx3x3, T_world_cam_vx4x4, b.mean(0))
     z = z[z > 1e-3]
     f = float(np.mean(Ks_vx3x3[:, [0, 1], [0, 1]]))
     base_cell = float((b[1] - b[0]).max()) / base_res
     target = cell_px * (float(np.median(z)) if len(z) else base_cell * f) / f
-    lv = max(0, round(math.log2(max(base_cell / target, 1.0))))  # finest cell within sqrt(2) of the target
+    lv = max(0, round(math.log2(max(base_cell / target, 1.0))))
     lv = max(lv, math.ceil(math.log2(max(min_res / base_res, 1.0))))
+    if facet_cell_m > 0:
+        lv = min(lv, max(0, round(math.log2(max(base_cell / facet_cell_m, 1.0)))))
     return int(min(lv, max(0, math.floor(math.log2(max_res / base_res)))))
 
 
@@ -407,6 +455,7 @@ def _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings) -> 
     fine = field_.derive(vote_views=config.fine_vote_views or 0, masks_vxhxw=repaired, changed_views=changed)
     timings["repair"] = time.perf_counter() - t
     info["consensus_objects"] = len(objs)
+    info["hull_facet_m"] = hull_facet_m([o.points_px3 for o in objs], float(step.max()), poses)
     info["repaired_views"] = changed
     info["consensus_missing_views"] = [o.missing_views for o in objs]
     if changed:
@@ -444,7 +493,7 @@ def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, ev, W_fu
     levels = config.band_levels
     if levels is None:
         levels = auto_band_levels(bounds, Ks, poses, config.band_base_res, config.cell_px, config.max_band_res,
-                                  config.min_band_res)
+                                  config.min_band_res, config.facet_frac * info.get("hull_facet_m", 0.0))
     tols = (config.fine_vote_views,) if config.fine_vote_views is not None else fine_vote_candidates(len(Ks))
     t = time.perf_counter()
     meshes, grid = narrow_band_hull(fine, bounds, config.band_base_res, levels, table_z=table_z, band=config.band,
@@ -634,5 +683,5 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
 
 
 __all__ = ["DEFAULT_BOUNDS", "MODES", "ReconstructionConfig", "auto_band_levels", "auto_vote_views",
-           "fine_vote_candidates", "mode_label",
+           "fine_vote_candidates", "hull_facet_m", "mode_label",
            "reconstruct", "resolve_bounds", "resolve_table", "validate_capture"]
