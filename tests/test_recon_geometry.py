@@ -196,6 +196,32 @@ def test_fast_matches_reference_on_random_grids(seed):
     assert m.is_winding_consistent
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_edge_table_dedupe_gives_the_sorted_result_on_a_renumbered_subset(seed):
+    """marching_tets with the grid's tet-edge ids (flags instead of a sort) on a subset of tets whose vertices
+    are renumbered in increasing order (what the narrow band passes) equals the sorting path, bit for bit."""
+    rng = np.random.default_rng(seed)
+    g = build_tet_grid([[0, 0, 0], [1, 1, 1]], (5, 4, 3), use_cache=False)
+    e = g.edges_ex2
+    te = g.tets_tx4[:, torch.as_tensor(tetgrid.TET_EDGES_6x2)]
+    np.testing.assert_array_equal(e[g.tet_edges_tx6].numpy(), torch.sort(te, dim=-1).values.numpy())
+    sdf = torch.from_numpy(rng.normal(size=g.n_verts))
+    verts = g.verts_vx3.double() + torch.from_numpy(rng.uniform(-0.02, 0.02, (g.n_verts, 3)))
+    whole = marching_tets_with_info(verts, g.tets_tx4, sdf)
+    flags = marching_tets_with_info(verts, g.tets_tx4, sdf, tet_edges_tx6=g.tet_edges_tx6, n_edges=len(e))
+    assert torch.equal(whole.faces_fx3, flags.faces_fx3) and torch.equal(whole.verts_mx3, flags.verts_mx3)
+    sub = torch.from_numpy(np.sort(rng.choice(g.n_tets, g.n_tets // 2, replace=False)))
+    used = torch.unique(g.tets_tx4[sub])
+    local = torch.full((g.n_verts,), -1, dtype=torch.int64)
+    local[used] = torch.arange(len(used))
+    a = marching_tets_with_info(verts[used], local[g.tets_tx4[sub]], sdf[used])
+    b = marching_tets_with_info(verts[used], local[g.tets_tx4[sub]], sdf[used], tet_edges_tx6=g.tet_edges_tx6[sub],
+                                n_edges=len(e))
+    assert len(a.faces_fx3) > 10
+    assert torch.equal(a.faces_fx3, b.faces_fx3) and torch.equal(a.verts_mx3, b.verts_mx3)
+    assert torch.equal(a.edges_mx2, b.edges_mx2) and torch.equal(a.face_tet_f, b.face_tet_f)
+
+
 def test_gradcheck_tiny_case():
     g = build_tet_grid([[0, 0, 0], [1, 1, 1]], (2, 1, 1), use_cache=False)
     verts = g.verts_vx3.double().clone().requires_grad_(True)

@@ -45,6 +45,8 @@ from torm.types import TriMesh
 log = logging.getLogger(__name__)
 
 _PARAMS = ("mlp", "vertex")
+#: rows of the MLP evaluated at a time (see :meth:`_Field._mlp_rows`)
+MLP_CHUNK = 1024
 _STARTS = ("sphere", "hull")
 _LOSSES = ("init", "envelope", "robust")
 
@@ -290,13 +292,27 @@ class _Field:
             if idx is not None:
                 s, dv = s[idx], dv[idx]
         else:
-            out = self.mlp.net(self.pe if idx is None else self.pe[idx])
+            out = self._mlp_rows(idx)
             s, dv = out[:, 0], out[:, 1:]
         fixed = self.fixed if idx is None else self.fixed[idx]
         base = self.base if idx is None else self.base[idx]
         s = torch.where(fixed, torch.full_like(s, 0.5), s)
         verts = base + self.cfg.max_deform * self.cell_3 * torch.tanh(dv)
         return s, verts
+
+    def _mlp_rows(self, idx: torch.Tensor | None) -> torch.Tensor:
+        """The MLP on the encoded grid vertices ``idx`` (all when None), ``MLP_CHUNK`` rows at a time: the
+        activations of a chunk stay in the CPU cache (measured, 1 thread, 128 hidden: 31k rows 54 ms in one
+        piece, 20 ms in chunks of 1024; 8k rows 7.2 vs 5.6 ms). Rows are independent, so the values are those
+        of one call up to float rounding."""
+        n = len(self.pe) if idx is None else len(idx)
+        if n <= MLP_CHUNK:
+            return self.mlp.net(self.pe if idx is None else self.pe[idx])
+        parts = []
+        for i in range(0, n, MLP_CHUNK):
+            rows = slice(i, i + MLP_CHUNK)
+            parts.append(self.mlp.net(self.pe[rows] if idx is None else self.pe[idx[rows]]))
+        return torch.cat(parts)
 
     def eikonal(self, s_cells: torch.Tensor, verts: torch.Tensor, v0_mx3: torch.Tensor,
                 gen: torch.Generator) -> torch.Tensor:
@@ -340,6 +356,8 @@ class _Surface:
         self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
                       "grad_verts": 0, "backprop_verts": 0}
         self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        if self.banded:
+            self.tet_edges, self.n_edges = grid.tet_edges_tx6, len(grid.edges_ex2)
 
     def full_pass(self) -> None:
         """Evaluate every vertex without gradients, count band misses, rebuild the band.
@@ -361,7 +379,8 @@ class _Surface:
         self.stats["band_tets"].append(float(self.band.n_tets))
 
     def extract(self, it: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(sdf (V,) cells, deformed vertices (V, 3) m, mesh vertices, mesh faces), differentiable."""
+        """(sdf cells, deformed vertices m, mesh vertices, mesh faces), differentiable: sdf and vertices of every
+        grid vertex ((V,), (V, 3)), or with the band of the crossing tets' vertices only."""
         cell = self.fld.cell
         if not self.banded:
             with self.clock("field"):
@@ -395,19 +414,24 @@ class _Surface:
             s_v, v_v = self.s_v.clone(), self.v_v.clone()
             s_v[ids], v_v[ids] = s_n, v_n
             n_in = (s_v < 0)[self.band.tets_bx4].sum(-1)
-            tets_c = self.band.tets_bx4[(n_in > 0) & (n_in < 4)]
+            cross = (n_in > 0) & (n_in < 4)
+            tets_c = self.band.tets_bx4[cross]
+            edges_c = self.tet_edges[self.band.tet_ids_b[cross]]
             used = torch.zeros(len(s_v), dtype=torch.bool)
             used[tets_c.reshape(-1)] = True
             vc = torch.nonzero(used, as_tuple=True)[0]
             s_c = s_v[vc].requires_grad_(True)
             v_c = v_v[vc].requires_grad_(True)
-            s = s_v.index_put((vc,), s_c)
-            verts = v_v.index_put((vc,), v_c)
-            mv, mf = marching_tets(verts, tets_c, s * self.fld.cell)
+            # march on the crossing tets' vertices only (local indices keep the global order, so the mesh is
+            # the one of the whole grid, and no gradient passes through grid-sized tensors)
+            local = torch.full((len(s_v),), -1, dtype=torch.int64)
+            local[vc] = torch.arange(len(vc))
+            mv, mf = marching_tets(v_c, local[tets_c], s_c * self.fld.cell, tet_edges_tx6=edges_c,
+                                   n_edges=self.n_edges)
         self.s_v, self.v_v = s_v, v_v
         self._leaves = (vc, s_c, v_c)
         self.stats["grad_verts"] += len(vc)
-        return s, verts, mv, mf
+        return s_c, v_c, mv, mf
 
     def backward_field(self) -> None:
         """After ``loss.backward()``: chain the gradients that reached the crossing tets' vertices through the MLP,

@@ -98,7 +98,8 @@ def _check_inputs(verts_vx3: torch.Tensor, tets_tx4: torch.Tensor, sdf_v: torch.
 
 
 def marching_tets_with_info(verts_vx3: torch.Tensor, tets_tx4: torch.Tensor, sdf_v: torch.Tensor,
-                            *, crossing_only: bool = True) -> MarchingTetsResult:
+                            *, crossing_only: bool = True, tet_edges_tx6: torch.Tensor | None = None,
+                            n_edges: int = 0) -> MarchingTetsResult:
     """Extract the zero level set of ``sdf_v`` on a tet mesh; see :func:`marching_tets`.
 
     Args:
@@ -108,6 +109,11 @@ def marching_tets_with_info(verts_vx3: torch.Tensor, tets_tx4: torch.Tensor, sdf
         crossing_only: do the cheap sign test on all tets first and all heavy work (edge gathering,
             deduplication, table lookups) only on the tets with mixed signs. ``False`` processes every
             tet (kaolin's approach; same output, slower) and exists for comparisons.
+        tet_edges_tx6: optional (T, 6) int64 ids in ``[0, n_edges)`` of each tet's edges (order of
+            ``TET_EDGES_6x2``), numbered in the order of ``(min, max)`` vertex pairs, e.g.
+            :attr:`TetGrid.tet_edges_tx6` of the tets given (a subset of a grid's tets with its rows, vertices
+            renumbered in increasing order or not): the edges are then deduplicated by marking ``n_edges``
+            flags instead of sorting. Same output.
     """
     _check_inputs(verts_vx3, tets_tx4, sdf_v)
     dev = verts_vx3.device
@@ -129,8 +135,20 @@ def marching_tets_with_info(verts_vx3: torch.Tensor, tets_tx4: torch.Tensor, sdf
         e = tets_c[:, torch.as_tensor(TET_EDGES_6x2, device=dev)].reshape(-1, 2)  # (Tc*6, 2)
         a = torch.minimum(e[:, 0], e[:, 1])
         b = torch.maximum(e[:, 0], e[:, 1])
-        key_u, inverse = torch.unique(a * n_v + b, return_inverse=True)
-        a_u, b_u = key_u // n_v, key_u % n_v
+        if tet_edges_tx6 is None:
+            key_u, inverse = torch.unique(a * n_v + b, return_inverse=True)
+            a_u, b_u = key_u // n_v, key_u % n_v
+        else:  # dedupe by flags over the edge ids: linear, and in the same (a, b) order as the sort
+            ids = tet_edges_tx6[tet_ids].reshape(-1)
+            flag = torch.zeros(n_edges, dtype=torch.bool, device=dev)
+            flag[ids] = True
+            key_u = torch.nonzero(flag, as_tuple=True)[0]
+            slot = torch.empty(n_edges, dtype=torch.int64, device=dev)
+            slot[key_u] = torch.arange(len(key_u), device=dev)
+            inverse = slot[ids]
+            a_u = torch.empty(len(key_u), dtype=torch.int64, device=dev)
+            b_u = torch.empty_like(a_u)
+            a_u[inverse], b_u[inverse] = a, b
         cross_u = occ_v[a_u] != occ_v[b_u]
         mapping = torch.full_like(key_u, -1)
         n_cross = int(cross_u.sum())
@@ -162,7 +180,8 @@ def _empty(verts_vx3: torch.Tensor) -> MarchingTetsResult:
 
 
 def marching_tets(verts_vx3: torch.Tensor, tets_tx4: torch.Tensor, sdf_v: torch.Tensor,
-                  *, crossing_only: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+                  *, crossing_only: bool = True, tet_edges_tx6: torch.Tensor | None = None,
+                  n_edges: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     """Triangle mesh of the surface ``sdf = 0`` inside a tet mesh.
 
     Args:
@@ -170,13 +189,15 @@ def marching_tets(verts_vx3: torch.Tensor, tets_tx4: torch.Tensor, sdf_v: torch.
         tets_tx4: (T, 4) int64 positively oriented tets.
         sdf_v: (V,) float SDF values, negative inside (0 counts as outside).
         crossing_only: restrict the heavy work to tets with mixed signs (default; same result).
+        tet_edges_tx6, n_edges: optional edge ids of the tets (see :func:`marching_tets_with_info`; same result).
 
     Returns:
         ``(mesh_verts_mx3, faces_fx3)``: (M, 3) vertices in the input's dtype, differentiable w.r.t.
         ``verts_vx3`` and ``sdf_v``, and (F, 3) int64 faces wound inside -> outside. With no sign change
         both are empty: (0, 3) float and (0, 3) int64.
     """
-    r = marching_tets_with_info(verts_vx3, tets_tx4, sdf_v, crossing_only=crossing_only)
+    r = marching_tets_with_info(verts_vx3, tets_tx4, sdf_v, crossing_only=crossing_only, tet_edges_tx6=tet_edges_tx6,
+                                n_edges=n_edges)
     return r.verts_mx3, r.faces_fx3
 
 
