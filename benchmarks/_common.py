@@ -56,6 +56,29 @@ def setup(threads: int = THREADS, verbose: bool = True) -> int:
     return configure_threads(threads)
 
 
+def cpu_info() -> dict[str, Any]:
+    """CPU model and the vector extensions that change torch's speed here (from /proc/cpuinfo; empty elsewhere).
+
+    Measured: TORM-paper on syn5 ran 205 s on a 2-core AVX-512 + bf16 machine and 501 s on a 2-core AVX2-only
+    one (2026-12-03), so a timing without the ISA cannot be compared.
+    """
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return {}
+    model = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if ln.startswith("model name")), "")
+    flags = set(next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), []))
+    isa = [f for f in ("avx2", "avx512f", "avx512_bf16", "amx_bf16") if f in flags]
+    return {"cpu_model": model, "isa": isa, "torch_bf16_native": _bf16_native()}
+
+
+def _bf16_native() -> bool:
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
+
+
 def context(args: dict[str, Any]) -> dict[str, Any]:
     """Run context: arguments, versions, threads, cores, date and load (``contended`` = 1-min load > 1.5)."""
     import mujoco
@@ -77,7 +100,7 @@ def context(args: dict[str, Any]) -> dict[str, Any]:
                      "torch": torch.__version__, "numpy": np.__version__, "scipy": scipy.__version__,
                      "mujoco": mujoco.__version__, "trimesh": trimesh.__version__, "git": rev},
         "threads": torch.get_num_threads(),
-        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform()},
+        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), **cpu_info()},
         "load_avg_start": list(os.getloadavg()),
         "contended": bool(load1 > 1.5),
     }
@@ -207,12 +230,20 @@ def md_table(header: list[str], rows: list[list[Any]], nd: int = 3) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _isa_md(machine: dict[str, Any]) -> str:
+    if "isa" not in machine:
+        return ""
+    return (f" ({machine.get('cpu_model') or 'CPU'}; {', '.join(machine['isa']) or 'no AVX2'}; "
+            f"native bf16: {machine.get('torch_bf16_native')})")
+
+
 def context_md(ctx: dict[str, Any]) -> str:
     """The context as a few Markdown lines."""
     v = ctx["versions"]
     return (f"- date (UTC): {ctx['date_utc']}; git {v.get('git', '')}; python {v['python']}, torch {v['torch']}, "
             f"numpy {v['numpy']}, mujoco {v['mujoco']}\n"
-            f"- torch threads: {ctx['threads']}; CPU count: {ctx['machine']['cpu_count']}; load average at start: "
+            f"- torch threads: {ctx['threads']}; CPU count: {ctx['machine']['cpu_count']}"
+            f"{_isa_md(ctx['machine'])}; load average at start: "
             f"{', '.join(f'{x:.2f}' for x in ctx['load_avg_start'])}; contended (1-min load > 1.5): "
             f"{ctx['contended']}\n"
             f"- arguments: `{json.dumps(ctx['args'])}`\n" + (f"- note: {ctx['note']}\n" if ctx.get("note") else ""))
