@@ -225,3 +225,44 @@ def test_parallel_shard_rendering_gives_the_same_dataset(tmp_path):
     assert np.array_equal(a["mask"], b["mask"]) and np.array_equal(a["rgb"], b["rgb"]) and a["mask"].any()
     with pytest.raises(ConfigError, match="workers"):
         generate(recipe, tmp_path / "bad", workers=0)
+
+
+def _asymmetric_onnx(path: Path) -> Path:
+    """A 3x3 conv whose kernel is not mirror-symmetric, so a view and its mirror image get different maps."""
+    rng = np.random.default_rng(0)
+    w = helper.make_tensor("w", TensorProto.FLOAT, [2, 3, 3, 3], (rng.normal(size=54) * 0.02).tolist())
+    node = helper.make_node("Conv", ["image", "w"], ["logits"], pads=[1, 1, 1, 1])
+    g = helper.make_graph([node], "m", [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, "h", "w"])],
+                          [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, 2, "h", "w"])], [w])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    onnx.save(m, str(path))
+    return path
+
+
+def test_flip_tta_is_mirror_equivariant_and_plain_is_not(tmp_path):
+    seg = LearnedSegmenter(LearnedConfig(model=str(_asymmetric_onnx(tmp_path / "a.onnx")), input_width=0))
+    rgb = np.random.default_rng(1).integers(0, 256, (32, 48, 3), dtype=np.uint8)
+    mirror = np.ascontiguousarray(rgb[:, ::-1])
+    fg, bd = seg.probabilities(rgb, flip_tta=True)
+    mfg, mbd = seg.probabilities(mirror, flip_tta=True)
+    np.testing.assert_allclose(fg, mfg[:, ::-1], atol=1e-6)
+    np.testing.assert_allclose(bd, mbd[:, ::-1], atol=1e-6)
+    pfg, _ = seg.probabilities(rgb, flip_tta=False)
+    pmfg, _ = seg.probabilities(mirror, flip_tta=False)
+    assert np.abs(pfg - pmfg[:, ::-1]).max() > 1e-3
+    # the TTA map is the mean of the two plain maps
+    np.testing.assert_allclose(fg, (pfg + pmfg[:, ::-1]) / 2, atol=1e-6)
+
+
+def test_postprocess_comes_from_the_config_then_the_card_then_the_defaults(tmp_path):
+    model = _onnx(tmp_path / "m.onnx")
+    assert LearnedSegmenter(LearnedConfig(model=str(model))).postprocess == {
+        "fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8, "flip_tta": False}
+    card = {"postprocess": {"fg_threshold": 0.4, "boundary_threshold": 0.3, "min_core_px": 16, "flip_tta": True}}
+    model.with_suffix(".json").write_text(json.dumps(card))
+    assert LearnedSegmenter(LearnedConfig(model=str(model))).postprocess == card["postprocess"]
+    pp = LearnedSegmenter(LearnedConfig(model=str(model), boundary_threshold=0.6, flip_tta=False)).postprocess
+    assert pp == {"fg_threshold": 0.4, "boundary_threshold": 0.6, "min_core_px": 16, "flip_tta": False}
+    with pytest.raises(ConfigError, match="min_core_px"):
+        LearnedConfig(min_core_px=0)

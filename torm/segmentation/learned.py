@@ -43,6 +43,9 @@ DEFAULT_MODEL = MODELS_DIR / "learned_seg.onnx"
 INPUTS = (TensorSpec("image", ("image",), (1, 3, None, None)),)
 OUTPUTS = (TensorSpec("logits", ("logits",), (1, 2, None, None)),)
 STRIDE = 16
+#: post-processing used when neither the config nor the model card sets it (the first model's untuned values)
+POSTPROCESS_DEFAULTS: dict[str, Any] = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
+                                        "flip_tta": False}
 
 
 @dataclass(frozen=True)
@@ -51,13 +54,18 @@ class LearnedConfig:
 
     ``model`` empty = the shipped file. ``input_width`` 0 = the capture's own width.
     ``min_area_px`` / ``min_core_px`` refer to the network input resolution.
+    ``fg_threshold``, ``boundary_threshold``, ``min_core_px`` and ``flip_tta`` left unset (None) come from the
+    model card's ``postprocess`` entry (calibrated on the model's validation split by
+    ``benchmarks/seg_postprocess.py``), else 0.5, 0.5, 8 px and False. ``flip_tta``: average the probabilities
+    with those of the horizontally flipped view (two network runs per view).
     """
 
     model: str = ""
     input_width: int = 640
-    fg_threshold: float = 0.5
-    boundary_threshold: float = 0.5
-    min_core_px: int = 8
+    fg_threshold: float | None = None
+    boundary_threshold: float | None = None
+    min_core_px: int | None = None
+    flip_tta: bool | None = None
     min_area_px: int = 30
     providers: tuple[str, ...] = ()
     threads: int = 0
@@ -65,11 +73,11 @@ class LearnedConfig:
     def __post_init__(self) -> None:
         for name in ("fg_threshold", "boundary_threshold"):
             v = getattr(self, name)
-            if not 0.0 < v < 1.0:
+            if v is not None and not 0.0 < v < 1.0:
                 raise ConfigError(f"learned.{name} = {v} must be in (0, 1)")
         if self.input_width < 0 or (self.input_width and self.input_width < STRIDE):
             raise ConfigError(f"learned.input_width must be 0 (capture width) or >= {STRIDE} px")
-        if self.min_core_px < 1 or self.min_area_px < 0 or self.threads < 0:
+        if (self.min_core_px is not None and self.min_core_px < 1) or self.min_area_px < 0 or self.threads < 0:
             raise ConfigError("learned: need min_core_px >= 1, min_area_px >= 0, threads >= 0")
 
     @property
@@ -92,12 +100,26 @@ class LearnedSegmenter(Segmenter):
                                     c.threads)
         card = c.model_path.with_suffix(".json")
         self.card: dict[str, Any] = json.loads(card.read_text()) if card.is_file() else {}
+        post = self.card.get("postprocess", {})
+        #: the post-processing in use: the config's values, else the card's calibration, else the defaults
+        self.postprocess: dict[str, Any] = {k: getattr(c, k) if getattr(c, k) is not None else post.get(k, d)
+                                            for k, d in POSTPROCESS_DEFAULTS.items()}
 
-    def probabilities(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) foreground and boundary probabilities of one (H, W, 3) uint8 RGB image, at its own size."""
+    def probabilities(self, rgb: np.ndarray, flip_tta: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) foreground and boundary probabilities of one (H, W, 3) uint8 RGB image, at its own size.
+
+        ``flip_tta`` (None = :attr:`postprocess`): the mean of the view's and its mirror image's probabilities.
+        """
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise CaptureError(f"the learned segmenter needs (H, W, 3) uint8 RGB images, got {rgb.shape} {rgb.dtype}")
+        if flip_tta if flip_tta is not None else self.postprocess["flip_tta"]:
+            fg, bd = self._probabilities(rgb)
+            ffg, fbd = self._probabilities(np.ascontiguousarray(rgb[:, ::-1]))
+            return (fg + ffg[:, ::-1]) / 2, (bd + fbd[:, ::-1]) / 2
+        return self._probabilities(rgb)
+
+    def _probabilities(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h, w = rgb.shape[:2]
         tw = self.config.input_width or w
         th = max(int(round(h * tw / w)), 1)
@@ -114,11 +136,12 @@ class LearnedSegmenter(Segmenter):
 
     def segment_image(self, rgb: np.ndarray) -> tuple[np.ndarray, tuple[Detection, ...]]:
         """(H, W) int32 instance mask and one detection (box, mean foreground probability) per instance."""
-        c = self.config
+        c, pp = self.config, self.postprocess
         fg, bd = self.probabilities(rgb)
         scale = (rgb.shape[1] / (c.input_width or rgb.shape[1])) ** 2
-        mask, scores = extract_instances(fg, bd, c.fg_threshold, c.boundary_threshold,
-                                         max(int(round(c.min_core_px * scale)), 1), int(round(c.min_area_px * scale)))
+        mask, scores = extract_instances(fg, bd, pp["fg_threshold"], pp["boundary_threshold"],
+                                         max(int(round(pp["min_core_px"] * scale)), 1),
+                                         int(round(c.min_area_px * scale)))
         dets = []
         for i, s in enumerate(scores, start=1):
             ys, xs = np.nonzero(mask == i)
@@ -137,7 +160,8 @@ class LearnedSegmenter(Segmenter):
             dets.append(d)
         out = np.stack(masks)
         info: dict[str, Any] = {"segmenter": self.name, "model": str(self.config.model_path),
-                                "model_renderer": self.card.get("data", {}).get("renderer")}
+                                "model_renderer": self.card.get("data", {}).get("renderer"),
+                                "postprocess": dict(self.postprocess)}
         if capture.has_masks:
             info["quality"] = mask_quality(out, capture.masks())
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)

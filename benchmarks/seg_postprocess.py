@@ -1,0 +1,178 @@
+"""Calibrate the learned segmenter's post-processing on its validation split; measure it once on the test splits.
+
+The network predicts two maps per view (object foreground, instance-boundary band);
+:func:`torm.segmentation.instances.extract_instances` turns them into instances with three settings:
+``fg_threshold``, ``boundary_threshold`` and ``min_core_px``. The shipped model used the untuned 0.5 / 0.5 / 8.
+This script:
+
+1. renders (or reuses) the ``val``, ``test_layouts`` and ``test_shapes`` splits of the model card's own data
+   recipe (``runs/seg_data/<renderer>``, the folder ``benchmarks/segmentation.py --learned`` uses);
+2. runs the network once per view (optionally also on the horizontally flipped view, averaging the two
+   probability maps: test-time augmentation ``flip_tta``);
+3. grid-searches the settings on ``val`` only (random layouts of the training distribution, 320x192 windows;
+   the training run used it only to pick its checkpoint) by mean object IoU (best-match IoU per (view, GT
+   object), :func:`torm.segmentation.training.evaluate.evaluate`);
+4. reports the default and the chosen setting on both test splits, which take no part in any choice.
+
+Writes ``<out>/seg_postprocess.{json,md}``. With ``--write-card`` the chosen setting is stored in the model
+card's ``postprocess`` entry, which :class:`torm.segmentation.learned.LearnedSegmenter` uses when the config
+leaves a setting unset. Run: ``python benchmarks/seg_postprocess.py [--write-card]`` (~10 min on 2 cores when
+the splits are rendered; rendering them: ~8 min).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common as bc  # noqa: E402
+
+log = logging.getLogger("bench.seg_postprocess")
+
+FG = (0.3, 0.4, 0.5, 0.6, 0.7)
+BD = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
+CORE = (4, 8, 16, 32)
+DEFAULT = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8, "flip_tta": False}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, default=bc.RESULTS, help="result folder")
+    p.add_argument("--data", type=Path, default=None, help="shard folder (default runs/seg_data/<card renderer>)")
+    p.add_argument("--model", default="", help="ONNX file (default: the shipped model)")
+    p.add_argument("--threads", type=int, default=bc.THREADS)
+    p.add_argument("--write-card", action="store_true", help="store the chosen setting in the model card")
+    p.add_argument("--quick", action="store_true", help="tiny grid and 1 shard per split (for tests)")
+    return p.parse_args(argv)
+
+
+def probabilities(seg: Any, rgb_nxhxwx3: np.ndarray) -> dict[bool, list[tuple[np.ndarray, np.ndarray]]]:
+    """{flip_tta: [(fg, boundary) per view]}: plain, and averaged with the horizontally flipped view."""
+    return {f: [seg.probabilities(im, flip_tta=f) for im in rgb_nxhxwx3] for f in (False, True)}
+
+
+def score(probs: list[tuple[np.ndarray, np.ndarray]], data: dict[str, Any], setting: dict[str, Any],
+          held_out: tuple[str, ...]) -> dict[str, Any]:
+    """:func:`evaluate` of the instances that ``setting`` extracts from cached probabilities."""
+    from torm.segmentation.instances import extract_instances
+    from torm.segmentation.training.evaluate import evaluate
+
+    it = iter(probs)
+
+    def segment(_im: np.ndarray) -> np.ndarray:
+        fg, bd = next(it)
+        return extract_instances(fg, bd, setting["fg_threshold"], setting["boundary_threshold"],
+                                 setting["min_core_px"], 30)[0]
+
+    return evaluate(segment, data, held_out)
+
+
+def _row(name: str, setting: dict[str, Any], m: dict[str, Any]) -> dict[str, Any]:
+    return {"split": name, **setting, "silhouette_iou": m["silhouette_iou_mean"],
+            "object_iou": m["object"]["iou_mean"], "held_out_iou": m["held_out_objects"]["iou_mean"],
+            "miss_rate": m["object"]["miss_rate"], "false_pos_per_view": m["false_positives_per_view"],
+            "per_type": {k: v["iou_mean"] for k, v in m["per_type"].items()}}
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = parse_args(argv)
+    bc.setup(a.threads)
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from tqdm import tqdm
+
+    from torm.config import from_dict
+    from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
+    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
+
+    seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads, input_width=0))
+    card = seg.card
+    if not card:
+        raise SystemExit(f"{seg.config.model_path}: no model card (.json) beside it")
+    recipe = from_dict(DataRecipe, dict(card["data"]), where="model card data recipe")
+    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / recipe.renderer
+    splits = ("val", "test_layouts", "test_shapes")
+    if a.quick:
+        import dataclasses
+
+        recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in splits}, scenes_per_shard=1,
+                                     test_views=4)
+        data_dir = a.data or bc.ROOT / "runs" / "seg_data" / "quick_mujoco"
+    generate(recipe, data_dir, splits=splits)
+    held = tuple(card["held_out_shapes"])
+    t0 = time.perf_counter()
+    data = {s: load_split(data_dir, s) for s in splits}
+    probs = {s: probabilities(seg, data[s]["rgb"]) for s in splits}
+    net_s = time.perf_counter() - t0
+    grid = [dict(zip(("fg_threshold", "boundary_threshold", "min_core_px", "flip_tta"), v, strict=True))
+            for v in itertools.product(FG[1:3] if a.quick else FG, BD[2:4] if a.quick else BD,
+                                       CORE[:2] if a.quick else CORE, (False, True))]
+    val_rows = []
+    for st in tqdm(grid, desc="val grid", unit="setting"):
+        val_rows.append(_row("val", st, score(probs["val"][st["flip_tta"]], data["val"], st, held)))
+    best = max(val_rows, key=lambda r: r["object_iou"])
+    chosen = {k: best[k] for k in DEFAULT}
+    default_val = next(r for r in val_rows if all(r[k] == v for k, v in DEFAULT.items()))
+    test_rows = []
+    for s in ("test_layouts", "test_shapes"):
+        for name, st in (("default", DEFAULT), ("chosen on val", chosen)):
+            r = _row(s, st, score(probs[s][st["flip_tta"]], data[s], st, held))
+            r["setting"] = name
+            test_rows.append(r)
+    args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
+    doc = {"context": bc.context(args), "model": seg.config.model_path.name, "renderer": recipe.renderer,
+           "recipe": recipe.to_dict(), "views": {s: int(len(data[s]["rgb"])) for s in splits},
+           "network_seconds": net_s, "default": DEFAULT, "chosen": chosen, "val_default": default_val,
+           "val_best": best, "val_grid": val_rows, "test": test_rows}
+    a.out.mkdir(parents=True, exist_ok=True)
+    bc.write_json(a.out / "seg_postprocess.json", json.loads(json.dumps(doc, default=str)))
+    (a.out / "seg_postprocess.md").write_text(report(doc))
+    if a.write_card:
+        path = seg.config.model_path.with_suffix(".json")
+        card = json.loads(path.read_text())
+        card["postprocess"] = {**chosen, "chosen_by": "benchmarks/seg_postprocess.py: best mean object IoU on the "
+                               "val split", "val_object_iou": best["object_iou"]}
+        path.write_text(json.dumps(card, indent=2) + "\n")
+        log.info("wrote the chosen post-processing into %s", path)
+    log.info("chosen %s: val %.3f (default %.3f)", chosen, best["object_iou"], default_val["object_iou"])
+    return 0
+
+
+def report(doc: dict[str, Any]) -> str:
+    ctx = doc["context"]
+    head = ["split", "setting", "fg thr", "boundary thr", "min core px", "flip TTA", "silhouette IoU", "object IoU",
+            "held-out shapes IoU", "miss rate", "false pos / view"]
+    rows = [[r["split"], r["setting"], r["fg_threshold"], r["boundary_threshold"], r["min_core_px"], r["flip_tta"],
+             r["silhouette_iou"], r["object_iou"], r["held_out_iou"], r["miss_rate"], r["false_pos_per_view"]]
+            for r in doc["test"]]
+    top = sorted(doc["val_grid"], key=lambda r: -r["object_iou"])[:10]
+    vrows = [[r["fg_threshold"], r["boundary_threshold"], r["min_core_px"], r["flip_tta"], r["silhouette_iou"],
+              r["object_iou"], r["miss_rate"], r["false_pos_per_view"]] for r in [doc["val_default"], *top]]
+    types = sorted({t for r in doc["test"] for t in r["per_type"]})
+    trows = [[t, *[r["per_type"].get(t) for r in doc["test"]]] for t in types]
+    return (
+        "# Learned segmenter: post-processing calibrated on val, measured on the test splits\n\n"
+        "Generated by `benchmarks/seg_postprocess.py`. Model `" + doc["model"] + "`, test renders from its card's "
+        f"recipe (renderer `{doc['renderer']}`); views: {doc['views']}. The settings are chosen on `val` only "
+        "(best mean object IoU); `test_layouts` / `test_shapes` are measured once with the default and once with "
+        "the chosen setting. Object IoU: best-match IoU per (view, GT object with >= 100 visible px); a miss is "
+        "IoU < 0.5. Flip TTA: the probabilities averaged with those of the horizontally flipped view (2 network "
+        "runs per view).\n\n**Run context**\n\n" + bc.context_md(ctx) + "\n## Test splits\n\n"
+        + bc.md_table(head, rows, 3) + "\n## Per object type (object IoU; columns in the order of the rows above)\n\n"
+        + bc.md_table(["type", *[f"{r['split']} {r['setting']}" for r in doc["test"]]], trows, 3)
+        + "\n## Validation grid: the default, then the 10 best\n\n"
+        + bc.md_table(["fg thr", "boundary thr", "min core px", "flip TTA", "silhouette IoU", "object IoU",
+                       "miss rate", "false pos / view"], vrows, 3))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
