@@ -50,6 +50,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=bc.RESULTS, help="result folder")
     p.add_argument("--data", type=Path, default=None, help="shard folder (default runs/seg_data/<card renderer>)")
     p.add_argument("--model", default="", help="ONNX file (default: the shipped model)")
+    p.add_argument("--cache", type=Path, default=None, help="--quick: folder for its tiny MuJoCo-rendered splits")
     p.add_argument("--threads", type=int, default=bc.THREADS)
     p.add_argument("--write-card", action="store_true", help="store the chosen setting in the model card")
     p.add_argument("--quick", action="store_true", help="tiny grid and 1 shard per split (for tests)")
@@ -106,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
 
         recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in splits}, scenes_per_shard=1,
                                      test_views=4)
-        data_dir = a.data or bc.ROOT / "runs" / "seg_data" / "quick_mujoco"
+        data_dir = a.data or (a.cache or bc.ROOT / "runs") / "seg_data_quick_mujoco"
     generate(recipe, data_dir, splits=splits)
     held = tuple(card["held_out_shapes"])
     t0 = time.perf_counter()

@@ -104,3 +104,19 @@ def test_recon_vs_carve_quick_writes_tables(tmp_path: Path) -> None:
     assert scene["best_carve"] == "carve 32^3" and doc["summary"]["scenes"] == 1
     md = (out / "recon_vs_carve.md").read_text()
     assert "TORM-fast (consensus + narrow-band projective hull)" in md and "best carve" in md
+
+
+def test_seg_postprocess_quick_chooses_on_val_and_reports_test(tmp_path: Path) -> None:
+    _run("seg_postprocess.py", tmp_path)
+    out = tmp_path / "out"
+    doc = json.loads((out / "seg_postprocess.json").read_text())
+    assert set(doc["views"]) == {"val", "test_layouts", "test_shapes"}
+    # the grid holds the default, so the setting chosen on val scores at least as well there
+    assert doc["val_best"]["object_iou"] >= doc["val_default"]["object_iou"]
+    assert doc["chosen"] == {k: doc["val_best"][k] for k in doc["default"]}
+    assert [(r["split"], r["setting"]) for r in doc["test"]] == [
+        ("test_layouts", "default"), ("test_layouts", "chosen on val"), ("test_shapes", "default"),
+        ("test_shapes", "chosen on val")]
+    for r in doc["test"]:
+        assert 0.0 <= r["object_iou"] <= 1.0 and 0.0 <= r["silhouette_iou"] <= 1.0
+    assert (out / "seg_postprocess.md").read_text().startswith("# Learned segmenter: post-processing")
