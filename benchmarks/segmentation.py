@@ -236,8 +236,11 @@ def _learned_report(doc: dict[str, Any], out: Path, tag: str) -> None:
           f"visible px), best IoU with any predicted instance; a miss is IoU < {doc['match_iou']}; a false positive "
           f"is a predicted instance with IoU < {doc['match_iou']} against every GT object. Miss correlation: phi "
           "coefficient of an object's miss indicators in a view and in its nearest view (by viewing direction), "
-          "and P(miss | neighbour missed) vs P(miss). Nothing was tuned on these splits (checkpoint chosen on "
-          "`val`).\n",
+          "and P(miss | neighbour missed) vs P(miss). Nothing was tuned on these splits (checkpoint and "
+          "post-processing chosen on `val`). Post-processing: "
+          + (", ".join(f"{k} {v}" for k, v in doc["postprocess"].items()) if doc.get("postprocess")
+             else "0.5 / 0.5 / 8")
+          + " (`benchmarks/seg_postprocess.md`).\n",
           f"Targets: object IoU >= {tgt['unseen_layouts_iou']} on unseen layouts (`test_layouts`: "
           f"{bc.fmt(tgt['unseen_layouts_measured'])}, **{'met' if tgt['unseen_layouts_met'] else 'not met'}**); "
           f">= {tgt['unseen_shapes_iou']} on unseen shapes (held-out objects of `test_shapes`: "
@@ -307,7 +310,8 @@ def run_learned(a: argparse.Namespace) -> int:
     doc: dict[str, Any] = {"context": bc.context(args), "segmenter": "learned", "model": seg.config.model_path.name,
                            "renderer": a.renderer, "test_recipe": recipe.to_dict(), "model_card": {k: card[k] for k in (
                                "parameters", "data", "train", "held_out_shapes", "dataset", "training")},
-                           "splits": {}, "match_iou": 0.5, "min_visible_px": 100}
+                           "postprocess": dict(seg.postprocess), "splits": {}, "match_iou": 0.5,
+                           "min_visible_px": 100}
     t_total, n_total = 0.0, 0
     for split in ("test_layouts", "test_shapes"):
         data = load_split(data_dir, split)
