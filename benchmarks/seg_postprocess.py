@@ -140,12 +140,20 @@ def main(argv: list[str] | None = None) -> int:
     if a.write_card:
         path = seg.config.model_path.with_suffix(".json")
         card = json.loads(path.read_text())
-        card["postprocess"] = {**chosen, "chosen_by": "benchmarks/seg_postprocess.py: best mean object IoU on the "
-                               "val split", "val_object_iou": best["object_iou"]}
+        card["postprocess"] = card_entry(doc)
         path.write_text(json.dumps(card, indent=2) + "\n")
         log.info("wrote the chosen post-processing into %s", path)
     log.info("chosen %s: val %.3f (default %.3f)", chosen, best["object_iou"], default_val["object_iou"])
     return 0
+
+
+def card_entry(doc: dict[str, Any]) -> dict[str, Any]:
+    """The model card's ``postprocess`` entry: the chosen setting, how it was chosen and its test figures."""
+    keys = ("silhouette_iou", "object_iou", "held_out_iou", "miss_rate", "false_pos_per_view")
+    test = {f"{r['split']} ({r['setting']})": {k: r[k] for k in keys} for r in doc["test"]}
+    return {**doc["chosen"], "chosen_by": "benchmarks/seg_postprocess.py: best mean object IoU on the val split",
+            "val_object_iou": doc["val_best"]["object_iou"], "val_object_iou_default": doc["val_default"]["object_iou"],
+            "test": test, "date_utc": doc["context"]["date_utc"]}
 
 
 def report(doc: dict[str, Any]) -> str:
