@@ -10,7 +10,7 @@ import pytest
 import torch
 from test_recon_dmtet import BOUNDS, _capture  # tests/ is on sys.path under pytest
 
-from torm.errors import ReconstructionError
+from torm.errors import ConfigError, ReconstructionError
 from torm.reconstruction import losses
 from torm.reconstruction.api import ReconstructionConfig, reconstruct
 from torm.reconstruction.dmtet import DMTetConfig, _Clock, _Field, _Surface, downsample_masks, optimise_dmtet
@@ -77,6 +77,21 @@ def test_rescue_changes_nothing_when_the_mesh_never_vanishes(scene):
     b = optimise_dmtet(grid, K, T, masks, replace(cfg, rescue=True), table_z=0.0)
     assert a.history["empty_steps"] == [0.0] and a.history["loss"] == b.history["loss"]
     assert np.array_equal(a.mesh.faces_fx3, b.mesh.faces_fx3)
+
+
+def test_threads_apply_during_the_run_and_the_callers_setting_comes_back(scene):
+    _, masks, K, T = scene
+    grid = build_tet_grid(BOUNDS, 12)
+    cfg = DMTetConfig(param="vertex", iterations=3, views_per_batch=2, eval_every=0, threads=2)
+    torch.set_num_threads(1)
+    res = optimise_dmtet(grid, K, T, masks, cfg, table_z=0.0)
+    assert res.timings["torch_threads"] == 2.0 and torch.get_num_threads() == 1
+    keep = optimise_dmtet(grid, K, T, masks, replace(cfg, threads=0), table_z=0.0)
+    assert keep.timings["torch_threads"] == 1.0 and torch.get_num_threads() == 1
+    # the thread count does not change the result beyond float reduction order
+    assert np.allclose(res.history["loss"], keep.history["loss"], rtol=1e-4, atol=1e-6)
+    with pytest.raises(ConfigError, match="threads"):
+        DMTetConfig(threads=-1)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -103,6 +103,11 @@ class DMTetConfig:
             syn4, grid 48, envelope loss: mesh gone at step 26; at 3e-4 at step 112), while the paper describes a
             shrink over thousands of steps (Fig. 6) and an L_init collapse "by about 10k iterations".
         seed: seeds the view sampling and the MLP initialisation.
+        threads: torch intra-op threads while the optimisation runs (the caller's setting is restored after);
+            0 keeps the caller's setting. 1 because the tensors of a step are small (a band of a few thousand
+            vertices): on the 2-core machine paper mode ran syn5 (5000 steps) in 179 s with 1 thread and 263 s with
+            2, every stage slower with 2 (2026-12-04, idle, ``benchmarks/results/reconstruction_paper.json`` and
+            ``reconstruction_paper_2threads.json``; a first pair: 191 s and 254 s).
     """
 
     param: Literal["mlp", "vertex"] = "mlp"
@@ -139,8 +144,11 @@ class DMTetConfig:
     mlp_fit_clamp: float = 0.0
     mlp_lr: float = 1e-4
     seed: int = 0
+    threads: int = 1
 
     def __post_init__(self) -> None:
+        if self.threads < 0:
+            raise ConfigError(f"DMTetConfig.threads must be >= 0 (0 keeps the caller's setting), got {self.threads}")
         for name, valid in (("param", _PARAMS), ("start", _STARTS), ("loss", _LOSSES),
                             ("lr_schedule", ("exp", "cosine")), ("robust_kind", ("mad", "gm"))):
             if getattr(self, name) not in valid:
@@ -516,7 +524,21 @@ def optimise_dmtet(
         empty mesh (``history["collapsed_at"] = [step]``, else ``[-1]``); with it the step is answered with a
         loss that pulls the SDF down at vertices projecting inside the batch silhouettes
         (``history["rescued_steps"]``). ``history["empty_steps"]`` counts the steps with an empty mesh.
+        ``timings["torch_threads"]``: the intra-op threads it ran with (``cfg.threads``, or the caller's for 0).
     """
+    before = torch.get_num_threads()
+    if cfg.threads and cfg.threads != before:
+        torch.set_num_threads(cfg.threads)
+    try:
+        return _optimise(grid, K_vx3x3, T_cam_world_vx4x4, masks_vxhxw, cfg, init_sdf_v, table_z)
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+
+
+def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray, masks_vxhxw: np.ndarray,
+              cfg: DMTetConfig, init_sdf_v: np.ndarray | None, table_z: float | None) -> DMTetResult:
+    """:func:`optimise_dmtet` at the torch thread count already set."""
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     V_views, h, w = masks_vxhxw.shape
@@ -636,6 +658,7 @@ def optimise_dmtet(
         "mlp_fit_s": t_fit,
         "ms_per_step": 1e3 * (total - t_fit) / n_it if cfg.iterations else 0.0,
         "steps_run": float(n_run),
+        "torch_threads": float(torch.get_num_threads()),
     }
     for k, v in clock.s.items():
         timings[f"{k}_ms_per_step"] = 1e3 * v / n_it
