@@ -120,3 +120,17 @@ def test_seg_postprocess_quick_chooses_on_val_and_reports_test(tmp_path: Path) -
     for r in doc["test"]:
         assert 0.0 <= r["object_iou"] <= 1.0 and 0.0 <= r["silhouette_iou"] <= 1.0
     assert (out / "seg_postprocess.md").read_text().startswith("# Learned segmenter: post-processing")
+
+
+def test_seg_miss_causes_quick_classifies_every_object_and_sweeps_the_neck_split(tmp_path: Path) -> None:
+    _run("seg_miss_causes.py", tmp_path)
+    out = tmp_path / "out"
+    doc = json.loads((out / "seg_miss_causes.json").read_text())
+    assert set(doc["causes"]) == {"val", "test_layouts", "test_shapes"}
+    for c in doc["causes"].values():
+        assert set(c) == {"ok", "background", "merged", "split", "other"}
+        assert sum(v["n"] for v in c.values()) > 0
+    sweep = doc["neck_split_sweep"]
+    assert {r["core_split_px"] for r in sweep} == {0.0, 2.0} and len(sweep) == 6
+    assert doc["neck_split_chosen_on_val"] in (0.0, 2.0)
+    assert (out / "seg_miss_causes.md").read_text().startswith("# Learned segmenter: why objects are missed")

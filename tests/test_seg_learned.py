@@ -135,6 +135,30 @@ def test_touching_discs_are_separated_by_the_boundary_output():
         extract_instances(np.zeros((4, 4)), np.zeros((4, 5)))
 
 
+def test_neck_split_separates_touching_discs_without_a_boundary_and_keeps_a_bar_whole():
+    from torm.segmentation.instances import split_cores_at_necks
+
+    gt = _discs()
+    fg = (gt > 0).astype(np.float32)
+    # no boundary output at all: off -> one blob; an 8 px erosion opens the neck (7 px deep) between the discs
+    assert extract_instances(fg, np.zeros_like(fg))[0].max() == 1
+    two, _ = extract_instances(fg, np.zeros_like(fg), core_split_px=8)
+    assert two.max() == 2 and mask_quality(two[None], gt[None])["object_iou_mean"] > 0.95
+    # a uniform bar (no neck) stays one instance at any depth below its half width; deeper erosion removes it
+    # entirely, and then the core is kept whole
+    bar = np.zeros((40, 120), np.float32)
+    bar[15:25, 10:110] = 1
+    for d in (2, 4, 8):
+        assert extract_instances(bar, np.zeros_like(bar), core_split_px=d)[0].max() == 1
+    # the helper on hand-built labels: empty in, empty out; two cores stay two
+    assert split_cores_at_necks(np.zeros((5, 5), np.int32), 2, 1).max() == 0
+    cores = np.zeros((9, 20), np.int32)
+    cores[2:7, 1:6], cores[2:7, 12:18] = 1, 2
+    assert split_cores_at_necks(cores, 1, 1).max() == 2
+    with pytest.raises(ValueError, match="core_split_px"):
+        extract_instances(fg, np.zeros_like(fg), core_split_px=-1)
+
+
 def test_one_training_step_exports_a_loadable_onnx(tmp_path):
     from torm.segmentation.training.train import TrainConfig, checkpoint_summary, export_onnx, load_best, train
 
@@ -266,3 +290,30 @@ def test_postprocess_comes_from_the_config_then_the_card_then_the_defaults(tmp_p
     assert pp == {"fg_threshold": 0.4, "boundary_threshold": 0.6, "min_core_px": 16, "flip_tta": False}
     with pytest.raises(ConfigError, match="min_core_px"):
         LearnedConfig(min_core_px=0)
+
+
+def test_miss_causes_name_each_failure_on_hand_built_views() -> None:
+    from torm.segmentation.training.evaluate import miss_causes
+
+    gt = np.zeros((40, 60), np.int32)
+    gt[5:15, 5:15] = 1  # found exactly
+    gt[5:15, 20:30] = 2  # not predicted at all
+    gt[20:30, 5:15] = 3  # merged with 4 into one instance
+    gt[20:30, 15:25] = 4
+    gt[20:30, 35:55] = 5  # cut into four pieces
+    pred = np.zeros_like(gt)
+    pred[5:15, 5:15] = 7
+    pred[19:31, 4:26] = 8
+    for i, x in enumerate(range(35, 55, 5)):
+        pred[20:30, x:x + 5] = 10 + i
+    got = miss_causes(pred, gt)
+    assert got == {1: "ok", 2: "background", 3: "merged", 4: "merged", 5: "split"}
+    # an instance far larger than its object, spilling onto the background only: "other"
+    big = np.zeros_like(gt)
+    big[0:30, 0:30] = 1
+    assert miss_causes(big, np.where(gt == 1, 1, 0)) == {1: "other"}
+    # small objects are skipped, an empty view gives nothing, shapes must match
+    assert miss_causes(pred, gt, min_visible_px=1000) == {}
+    assert miss_causes(np.zeros_like(gt), np.zeros_like(gt)) == {}
+    with pytest.raises(ValueError, match="must both be"):
+        miss_causes(pred[:, :10], gt)

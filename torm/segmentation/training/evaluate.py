@@ -104,3 +104,58 @@ def evaluate(segment: Callable[[np.ndarray], np.ndarray], data: dict[str, Any], 
         "miss_correlation_neighbour_views": corr,
         "match_iou": match_iou, "min_visible_px": min_visible_px,
     }
+
+
+#: categories of :func:`miss_causes`, in report order
+MISS_CAUSES: tuple[str, ...] = ("ok", "background", "merged", "split", "other")
+
+
+def miss_causes(pred_hxw: np.ndarray, gt_hxw: np.ndarray, match_iou: float = 0.5, min_visible_px: int = 100,
+                merge_share: float = 0.3) -> dict[int, str]:
+    """Why each visible GT object of one view is missed: {GT id: one of :data:`MISS_CAUSES`}.
+
+    Args:
+        pred_hxw: (H, W) int predicted instances (0 background; ids need not match the GT).
+        gt_hxw: (H, W) int GT instances (0 background).
+        match_iou: an object whose best IoU with a predicted instance reaches this is ``ok``.
+        min_visible_px: GT objects with fewer visible pixels are skipped (as in :func:`evaluate`).
+        merge_share: ``merged`` when the object's dominant predicted instance covers other GT objects with more
+            than this fraction of its overlap with the object.
+
+    Rules, first match wins: ``ok`` (best IoU >= ``match_iou``); ``background`` (under half of the object's
+    pixels are predicted foreground); ``merged`` (see ``merge_share``); ``split`` (the dominant predicted instance
+    holds under half of the object's pixels); ``other`` (e.g. an instance much larger than the object that
+    spills onto the background).
+    """
+    pred = np.asarray(pred_hxw)
+    gt = np.asarray(gt_hxw)
+    if pred.shape != gt.shape or pred.ndim != 2:
+        raise ValueError(f"prediction {pred.shape} and GT {gt.shape} must both be (H, W)")
+    out: dict[int, str] = {}
+    for g in (int(i) for i in np.unique(gt) if i > 0):
+        gm = gt == g
+        area = int(np.count_nonzero(gm))
+        if area < min_visible_px:
+            continue
+        on = pred[gm]
+        fg_on = on[on > 0]
+        best = 0.0
+        for p in np.unique(fg_on):
+            inter = int(np.count_nonzero(fg_on == p))
+            best = max(best, inter / (int(np.count_nonzero(pred == p)) + area - inter))
+        if best >= match_iou:
+            out[g] = "ok"
+        elif fg_on.size < 0.5 * area:
+            out[g] = "background"
+        else:
+            ids, counts = np.unique(fg_on, return_counts=True)
+            dom = ids[np.argmax(counts)]
+            overlap = int(counts.max())
+            on_others = int(np.count_nonzero((pred == dom) & (gt > 0) & ~gm))
+            if on_others > merge_share * overlap:
+                out[g] = "merged"
+            elif overlap < 0.5 * area:
+                out[g] = "split"
+            else:
+                out[g] = "other"
+    return out
