@@ -30,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as bc  # noqa: E402
+from seg_postprocess import add_split_args, card_splits  # noqa: E402
 
 log = logging.getLogger("bench.seg_miss_causes")
 
@@ -39,11 +40,7 @@ SPLITS = ("val", "test_layouts", "test_shapes")
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", type=Path, default=bc.RESULTS, help="result folder")
-    p.add_argument("--data", type=Path, default=None, help="shard folder (default runs/seg_data/<card renderer>)")
-    p.add_argument("--model", default="", help="ONNX file (default: the shipped model)")
-    p.add_argument("--cache", type=Path, default=None, help="--quick: folder for its tiny MuJoCo-rendered splits")
-    p.add_argument("--threads", type=int, default=bc.THREADS)
+    add_split_args(p)
     p.add_argument("--quick", action="store_true", help="1 shard per split, 2 depths (for tests)")
     return p.parse_args(argv)
 
@@ -68,30 +65,16 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     from tqdm import tqdm
 
-    from torm.config import from_dict
     from torm.segmentation.instances import extract_instances
     from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
-    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
     from torm.segmentation.training.evaluate import evaluate
 
     seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads, input_width=0))
-    if not seg.card:
-        raise SystemExit(f"{seg.config.model_path}: no model card (.json) beside it")
-    recipe = from_dict(DataRecipe, dict(seg.card["data"]), where="model card data recipe")
-    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / recipe.renderer
-    depths = DEPTHS
-    if a.quick:
-        import dataclasses
-
-        recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in SPLITS}, scenes_per_shard=1,
-                                     test_views=4)
-        data_dir = a.data or (a.cache or bc.ROOT / "runs") / "seg_data_quick_mujoco"
-        depths = DEPTHS[:2]
-    generate(recipe, data_dir, splits=SPLITS)
+    recipe, data = card_splits(a, seg, SPLITS)
+    depths = DEPTHS[:2] if a.quick else DEPTHS
     held = tuple(seg.card["held_out_shapes"])
     pp = dict(seg.postprocess)
     t0 = time.perf_counter()
-    data = {s: load_split(data_dir, s) for s in SPLITS}
     probs = {s: [seg.probabilities(im) for im in tqdm(data[s]["rgb"], desc=f"network {s}", unit="view")]
              for s in SPLITS}
     net_s = time.perf_counter() - t0

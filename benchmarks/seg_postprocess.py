@@ -47,14 +47,39 @@ DEFAULT = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8, "fl
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_split_args(p)
+    p.add_argument("--write-card", action="store_true", help="store the chosen setting in the model card")
+    p.add_argument("--quick", action="store_true", help="tiny grid and 1 shard per split (for tests)")
+    return p.parse_args(argv)
+
+
+def add_split_args(p: argparse.ArgumentParser) -> None:
+    """The options of a script that measures the shipped segmenter on its card's held-out splits."""
     p.add_argument("--out", type=Path, default=bc.RESULTS, help="result folder")
     p.add_argument("--data", type=Path, default=None, help="shard folder (default runs/seg_data/<card renderer>)")
     p.add_argument("--model", default="", help="ONNX file (default: the shipped model)")
     p.add_argument("--cache", type=Path, default=None, help="--quick: folder for its tiny MuJoCo-rendered splits")
     p.add_argument("--threads", type=int, default=bc.THREADS)
-    p.add_argument("--write-card", action="store_true", help="store the chosen setting in the model card")
-    p.add_argument("--quick", action="store_true", help="tiny grid and 1 shard per split (for tests)")
-    return p.parse_args(argv)
+
+
+def card_splits(a: argparse.Namespace, seg: Any, splits: tuple[str, ...]) -> tuple[Any, dict[str, Any]]:
+    """(data recipe, {split: loaded split}) of the model card's recipe, rendered first if missing
+    (``--quick``: 1 tiny MuJoCo-rendered shard per split)."""
+    from torm.config import from_dict
+    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
+
+    if not seg.card:
+        raise SystemExit(f"{seg.config.model_path}: no model card (.json) beside it")
+    recipe = from_dict(DataRecipe, dict(seg.card["data"]), where="model card data recipe")
+    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / recipe.renderer
+    if a.quick:
+        import dataclasses
+
+        recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in splits}, scenes_per_shard=1,
+                                     test_views=4)
+        data_dir = a.data or (a.cache or bc.ROOT / "runs") / "seg_data_quick_mujoco"
+    generate(recipe, data_dir, splits=splits)
+    return recipe, {s: load_split(data_dir, s) for s in splits}
 
 
 def probabilities(seg: Any, rgb_nxhxwx3: np.ndarray) -> dict[bool, list[tuple[np.ndarray, np.ndarray]]]:
@@ -91,27 +116,13 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     from tqdm import tqdm
 
-    from torm.config import from_dict
     from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
-    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
 
     seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads, input_width=0))
-    card = seg.card
-    if not card:
-        raise SystemExit(f"{seg.config.model_path}: no model card (.json) beside it")
-    recipe = from_dict(DataRecipe, dict(card["data"]), where="model card data recipe")
-    data_dir = a.data or bc.ROOT / "runs" / "seg_data" / recipe.renderer
     splits = ("val", "test_layouts", "test_shapes")
-    if a.quick:
-        import dataclasses
-
-        recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in splits}, scenes_per_shard=1,
-                                     test_views=4)
-        data_dir = a.data or (a.cache or bc.ROOT / "runs") / "seg_data_quick_mujoco"
-    generate(recipe, data_dir, splits=splits)
-    held = tuple(card["held_out_shapes"])
+    recipe, data = card_splits(a, seg, splits)
+    held = tuple(seg.card["held_out_shapes"])
     t0 = time.perf_counter()
-    data = {s: load_split(data_dir, s) for s in splits}
     probs = {s: probabilities(seg, data[s]["rgb"]) for s in splits}
     net_s = time.perf_counter() - t0
     grid = [dict(zip(("fg_threshold", "boundary_threshold", "min_core_px", "flip_tta"), v, strict=True))
