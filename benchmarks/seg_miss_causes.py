@@ -83,12 +83,14 @@ def main(argv: list[str] | None = None) -> int:
         return extract_instances(fg, bd, pp["fg_threshold"], pp["boundary_threshold"], pp["min_core_px"], 30,
                                  depth)[0]
 
-    causes = {s: causes_of_split([instances(fg, bd, 0.0) for fg, bd in probs[s]], data[s]) for s in SPLITS}
-    sweep = []
+    causes, sweep = {}, []
     for depth in depths:
         for s in SPLITS:
-            it = iter(probs[s])
-            m = evaluate(lambda _im, _it=it, _d=depth: instances(*next(_it), _d), data[s], held)
+            preds = [instances(fg, bd, depth) for fg, bd in probs[s]]
+            if depth == 0.0:
+                causes[s] = causes_of_split(preds, data[s])
+            it = iter(preds)
+            m = evaluate(lambda _im, _it=it: next(_it), data[s], held)
             sweep.append({"split": s, "core_split_px": depth, "object_iou": m["object"]["iou_mean"],
                           "held_out_iou": m["held_out_objects"]["iou_mean"], "miss_rate": m["object"]["miss_rate"],
                           "false_pos_per_view": m["false_positives_per_view"]})

@@ -96,13 +96,13 @@ def split_cores_at_necks(cores_hxw: np.ndarray, depth_px: float, min_piece_px: i
     Other cores are kept whole. Labels are renumbered 1..M."""
     labels = np.asarray(cores_hxw)
     out = np.zeros(labels.shape, np.int32)
-    depth = ndimage.distance_transform_edt(labels > 0)
     nxt = 1
     for c, sl in enumerate(ndimage.find_objects(labels), start=1):
         if sl is None:
             continue
         region = labels[sl] == c
-        pieces, n = ndimage.label(region & (depth[sl] > depth_px), structure=_FOUR)
+        depth = ndimage.distance_transform_edt(np.pad(region, 1))[1:-1, 1:-1]  # to this core's own edge
+        pieces, n = ndimage.label(depth > depth_px, structure=_FOUR)
         sizes = np.bincount(pieces.ravel(), minlength=n + 1)
         big = [i for i in range(1, n + 1) if sizes[i] >= min_piece_px]
         if len(big) >= 2:
