@@ -12,7 +12,8 @@ interrupted run keeps what it measured; the combined ``reconstruction.json``/``.
 - ``paper``: TORM-paper (DMTet-Multi), the default paper configuration (MLP, sphere, envelope loss, 5000
   steps, no rescue) on ``--paper-scenes``: quality, wall and CPU time with the per-stage breakdown. The time is
   the headline: run it on an idle machine; the optimisation runs with ``DMTetConfig.threads`` (1, measured
-  faster than 2 on 2 cores) unless ``--paper-threads`` says otherwise (several minutes a scene here).
+  faster than 2 on 2 cores) unless ``--paper-threads`` says otherwise, with the side thread on the second core
+  (``--paper-side-thread``) and the MLP's start fit on ``--threads`` (about 100 s a scene here).
 - ``table1`` (or ``--table1``): Table I with the paper's MLP: L_init (eq. 1, at 0.1x and 1x learning rate) vs the
   envelope loss (eq. 2), GT vs corrupted masks, ``--table1-iters`` (8000, the paper's) steps, each without and
   with the rescue, on ``--table1-scenes``. Rows are appended one by one and a rerun skips the ones done, so it can
@@ -92,6 +93,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--paper-threads", type=int, default=None,
                    help="paper-part torch threads during the optimisation (default: DMTetConfig.threads, 1; "
                         "0: the process's --threads)")
+    p.add_argument("--paper-side-thread", choices=("auto", "on", "off"), default=None,
+                   help="paper part: DMTetConfig.side_thread (default auto: on with 1 torch thread and --threads >= 2)")
     p.add_argument("--mlp-fit-iters", type=int, default=None, help="MLP fit to the sphere (default: config)")
     p.add_argument("--table1", action="store_true", help="run the table1 part only (same as --parts table1)")
     p.add_argument("--table1-scenes", nargs="+", default=["syn1", "syn4", "syn5", "syn10"])
@@ -336,6 +339,8 @@ def part_paper(a: argparse.Namespace, ctx: dict[str, Any]) -> None:
         dm = replace(dm, mlp_fit_iters=a.mlp_fit_iters)
     if a.paper_threads is not None:
         dm = replace(dm, threads=a.paper_threads)
+    if a.paper_side_thread is not None:
+        dm = replace(dm, side_thread=a.paper_side_thread)
     for name in a.paper_scenes:
         if name in done:
             continue
@@ -700,9 +705,10 @@ def _paper_md(doc: dict[str, Any]) -> tuple[str, dict[str, Any]]:
                      r["time_s"], dt_.get("total_cpu_s"), r["ms_per_step"], r["mlp_fit_s"],
                      dt_.get("field_ms_per_step"), dt_.get("full_pass_ms_per_step"),
                      dt_.get("marching_tets_ms_per_step"), dt_.get("render_loss_ms_per_step"),
-                     dt_.get("eikonal_ms_per_step"), dt_.get("backward_step_ms_per_step"),
-                     dt_.get("field_grad_ms_per_step"), r.get("band_verts_mean"), r.get("band_misses"), r["threads"],
-                     r["load_avg_1min_start"], r["load_avg_1min_end"]])
+                     dt_.get("eikonal_ms_per_step", dt_.get("eikonal_wait_ms_per_step")),
+                     dt_.get("backward_step_ms_per_step"), dt_.get("field_grad_ms_per_step"), r.get("band_verts_mean"),
+                     r.get("band_misses"), r["threads"], {1.0: "on", 0.0: "off"}.get(dt_.get("side_thread"), "-"),
+                     dt_.get("fit_threads", "-"), r["load_avg_1min_start"], r["load_avg_1min_end"]])
     runs = doc["runs"]
     summ = {"scenes": len(runs), "collapsed": sum(1 for r in runs if r.get("collapsed_at", -1) >= 0),
             "all_found": sum(1 for r in runs if r["n_found"] == r["n_present"]),
@@ -721,12 +727,17 @@ def _paper_md(doc: dict[str, Any]) -> tuple[str, dict[str, Any]]:
           "other processes on the cores (on an otherwise idle 2-core machine the wall time lies between CPU s / 2 "
           "and CPU s). Per-step columns are ms per step by stage: field = MLP on the band without gradients; full "
           "pass = MLP on every vertex (amortised); field grad = MLP with gradients on the vertices the loss "
-          "reaches. The paper: 5k steps in 177.3 s on a GPU. `reconstruct(mode=\"paper\")` runs the same and then "
+          "reaches. Side thread (`DMTetConfig.side_thread`): a second thread computes eq. (4) and its gradient "
+          "while the main thread renders (the eikonal column is then the main thread's wait for it) and half of "
+          "each gradient-free evaluation (field, full pass); same values as without it. Threads: torch threads of "
+          "the loop; fit threads: of the MLP's start fit. The paper: 5k steps in 177.3 s on a GPU. "
+          "`reconstruct(mode=\"paper\")` runs the same and then "
           "raises when an object's silhouettes are not covered.\n\n"
           + bc.md_table(["scene", "steps", "collapsed at", "found/present", "IoU last 5", "IoU vs GT", "Chamfer mm",
                          "vol IoU", "wall s", "CPU s", "ms/step", "MLP fit s", "field ms", "full pass ms",
                          "marching tets ms", "render+loss ms", "eikonal ms", "backward+Adam ms", "field grad ms",
-                         "band verts (mean)", "band misses", "threads", "load start", "load end"], rows, nd=2))
+                         "band verts (mean)", "band misses", "threads", "side thread", "fit threads", "load start",
+                         "load end"], rows, nd=2))
     return md, summ
 
 

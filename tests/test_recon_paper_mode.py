@@ -175,6 +175,44 @@ def test_banded_run_follows_the_reference_run(scene):
     assert np.allclose(fast.history["iou_all"], ref.history["iou_all"], atol=1e-6)
 
 
+def test_side_thread_gives_the_same_run(scene):
+    """The side thread (eq. 4 during the render, half of each gradient-free evaluation) changes no value: the loss
+    history and the final field are bit-identical to the run without it."""
+    _, masks, K, T = scene
+    grid = build_tet_grid(BOUNDS, 20)
+    cfg = DMTetConfig(param="mlp", iterations=10, views_per_batch=2, eval_every=5, mlp_hidden=32, mlp_fit_iters=60,
+                      mlp_fit_lr=3e-3, full_pass_every=4, eikonal_points=64)
+    off = optimise_dmtet(grid, K, T, masks, replace(cfg, side_thread="off"), table_z=0.0)
+    on = optimise_dmtet(grid, K, T, masks, replace(cfg, side_thread="on"), table_z=0.0)
+    assert on.timings["side_thread"] == 1.0 and off.timings["side_thread"] == 0.0
+    assert off.history["n_faces"][-1] > 0 and min(off.history["eikonal"]) > 0
+    for key in ("loss", "eikonal", "mask_loss", "n_faces", "iou_all"):
+        assert on.history[key] == off.history[key], key
+    assert np.array_equal(on.sdf_v, off.sdf_v)
+    with pytest.raises(ConfigError, match="side_thread"):
+        DMTetConfig(side_thread="yes")
+
+
+def test_split_evaluation_keeps_grad_mode_and_autocast():
+    """Half the chunks run on the side thread: same values in float32 and bfloat16, no graph without grad."""
+    from torm.reconstruction.dmtet import MLP_CHUNK, _side_pool
+
+    grid = build_tet_grid(BOUNDS, 20)
+    assert grid.n_verts > 2 * MLP_CHUNK
+    cfg = DMTetConfig(param="mlp", mlp_hidden=16, mlp_fit_iters=0)
+    fld = _Field(grid, _two_spheres_cells(grid), torch.zeros(grid.n_verts, dtype=torch.bool), cfg,
+                 torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        ref32, ref16 = fld._mlp_rows(None), fld._mlp_rows(None, bf16=True)
+        fld.side = _side_pool()
+        got32, got16 = fld._mlp_rows(None), fld._mlp_rows(None, bf16=True)
+    assert torch.equal(got32, ref32) and torch.equal(got16, ref16)
+    assert got32.dtype == torch.float32 and not got32.requires_grad
+    assert got16.dtype == torch.bfloat16
+    with_grad = fld._mlp_rows(torch.arange(3 * MLP_CHUNK))  # with gradients: one thread, a graph
+    assert with_grad.requires_grad
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Eq. (3) and eq. (4) against hand-computed values; the L_init learning rate
 # ----------------------------------------------------------------------------------------------------------

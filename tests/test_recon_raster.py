@@ -9,7 +9,9 @@ import trimesh
 
 from torm.geometry import invert_T, look_at_cv
 from torm.reconstruction.raster import (
+    _screen_orientation,
     face_adjacency,
+    face_adjacency_reference,
     render_depth,
     render_mask,
     render_silhouette,
@@ -105,6 +107,26 @@ def test_face_adjacency_closed_mesh():
     for k in range(3):
         g = adj[f, k]
         assert {m.faces[f, k], m.faces[f, (k + 1) % 3]} <= set(m.faces[g])
+
+
+def test_face_adjacency_matches_sort_reference():
+    """The compiled adjacency equals the sort-based reference on a closed mesh, an open one (boundary edges -1)
+    and the empty mesh."""
+    m, _ = _sphere_scene()
+    closed = np.asarray(m.faces)
+    open_ = closed[: len(closed) // 2]
+    for faces in (closed, open_, closed[:0]):
+        got = face_adjacency(faces, len(m.vertices))
+        want = face_adjacency_reference(faces, len(m.vertices))
+        assert got.shape == want.shape == (len(faces), 3)
+        assert np.array_equal(got, want)
+    assert (face_adjacency(open_, len(m.vertices)) == -1).any()
+
+
+def test_screen_orientation_signs():
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [2.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 1], [0, 1, 3]], dtype=np.int64)
+    assert _screen_orientation(uv, faces).tolist() == [1, -1, 0]
 
 
 @pytest.mark.parametrize("mesh_kind", ["cube", "sphere"])

@@ -25,7 +25,9 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -35,11 +37,13 @@ import torch
 
 from torm.errors import ConfigError
 from torm.reconstruction import losses
+from torm.reconstruction.band_march import band_march, interpolate_surface
 from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.mlp import SDFDeformMLP
 from torm.reconstruction.narrow_band import Band, build_band
 from torm.reconstruction.raster import face_adjacency, render_mask, render_silhouettes
 from torm.reconstruction.tetgrid import TetGrid
+from torm.runtime import default_threads
 from torm.types import TriMesh
 
 log = logging.getLogger(__name__)
@@ -106,8 +110,23 @@ class DMTetConfig:
         threads: torch intra-op threads while the optimisation runs (the caller's setting is restored after);
             0 keeps the caller's setting. 1 because the tensors of a step are small (a band of a few thousand
             vertices): on the 2-core machine paper mode ran syn5 (5000 steps) in 179 s with 1 thread and 263 s with
-            2, every stage slower with 2 (2026-12-04, idle, ``benchmarks/results/reconstruction_paper.json`` and
-            ``reconstruction_paper_2threads.json``; a first pair: 191 s and 254 s).
+            2, every stage slower with 2 (2026-12-04, idle, before the side thread and the compiled band march;
+            ``benchmarks/results/reconstruction_paper_2threads.json``; a first pair: 191 s and 254 s). The second
+            core is used by ``side_thread`` instead.
+        fit_threads: torch intra-op threads for the MLP's start fit (``mlp_fit_iters`` steps on batches of 8192
+            vertices, large enough to gain from more cores: 6.4 s on 2 threads vs 11.1 s on 1, syn5); 0 = what
+            :func:`torm.runtime.default_threads` gives (``TORM_THREADS``, else the idle cores). The periodic full
+            passes stay on ``threads``: switching them to 2 threads made the whole run slower (29.3 vs 28.1
+            ms/step), the idle OpenMP workers competing with the 1-thread loop.
+        side_thread: MLP only: a second thread, itself on 1 torch thread, that computes eq. (4) and its gradient
+            while the main thread renders the batch, and half of every gradient-free field evaluation (the band,
+            the full passes). Same values as without it: the work is split by rows or by independent terms and the
+            two parameter gradients are summed in a fixed order (tests/test_recon_paper_mode.py). "auto": on when
+            the loop runs on 1 torch thread and :func:`torm.runtime.default_threads` gives 2 or more; "on"/"off"
+            force it. Measured on syn5, 5000 steps, 2-core AVX-512 machine: 98 s and 105 s with it (18.4 and 19.1
+            ms/step; ``benchmarks/results/reconstruction_paper.json``), 135 s without (25.7 ms/step;
+            ``reconstruction_paper_noside.json``); the MLP's final field is bit-identical. Without it the views of a
+            batch render on ``threads`` threads.
     """
 
     param: Literal["mlp", "vertex"] = "mlp"
@@ -145,12 +164,18 @@ class DMTetConfig:
     mlp_lr: float = 1e-4
     seed: int = 0
     threads: int = 1
+    fit_threads: int = 0
+    side_thread: Literal["auto", "on", "off"] = "auto"
 
     def __post_init__(self) -> None:
         if self.threads < 0:
             raise ConfigError(f"DMTetConfig.threads must be >= 0 (0 keeps the caller's setting), got {self.threads}")
+        if self.fit_threads < 0:
+            raise ConfigError(f"DMTetConfig.fit_threads must be >= 0 (0 = TORM_THREADS or the idle cores), got "
+                              f"{self.fit_threads}")
         for name, valid in (("param", _PARAMS), ("start", _STARTS), ("loss", _LOSSES),
-                            ("lr_schedule", ("exp", "cosine")), ("robust_kind", ("mad", "gm"))):
+                            ("lr_schedule", ("exp", "cosine")), ("robust_kind", ("mad", "gm")),
+                            ("side_thread", ("auto", "on", "off"))):
             if getattr(self, name) not in valid:
                 raise ConfigError(f"DMTetConfig.{name}={getattr(self, name)!r}; valid choices: {', '.join(valid)}")
         if self.iterations < 0 or self.views_per_batch < 1 or self.mask_res < 8:
@@ -262,6 +287,7 @@ class _Field:
         self.cell = float(np.mean(grid.cell_size))
         self.cell_3 = torch.tensor(grid.cell_size, dtype=torch.float32)
         self.fixed = fixed_v
+        self.side: ThreadPoolExecutor | None = None  # set by the optimiser; see DMTetConfig.side_thread
         self.base = grid.verts_vx3.float()
         b = torch.tensor(grid.bounds, dtype=torch.float32)
         self.lo, self.ext = b[0], b[1] - b[0]
@@ -302,25 +328,43 @@ class _Field:
         else:
             out = self._mlp_rows(idx)
             s, dv = out[:, 0], out[:, 1:]
-        fixed = self.fixed if idx is None else self.fixed[idx]
-        base = self.base if idx is None else self.base[idx]
-        s = torch.where(fixed, torch.full_like(s, 0.5), s)
-        verts = base + self.cfg.max_deform * self.cell_3 * torch.tanh(dv)
-        return s, verts
+        return self.sdf_of(s, idx), self.verts_of(dv, idx)
 
-    def _mlp_rows(self, idx: torch.Tensor | None) -> torch.Tensor:
+    def sdf_of(self, s_raw: torch.Tensor, idx: torch.Tensor | None) -> torch.Tensor:
+        """SDF (N,) in cells from the raw output ``s_raw`` of the vertices ``idx`` (all when None): fixed
+        vertices held outside at +0.5 cell."""
+        fixed = self.fixed if idx is None else self.fixed[idx]
+        return torch.where(fixed, torch.full_like(s_raw, 0.5), s_raw)
+
+    def verts_of(self, dv_raw: torch.Tensor, idx: torch.Tensor | None) -> torch.Tensor:
+        """Deformed positions (N, 3) m from the raw deformation output ``dv_raw`` of the vertices ``idx``:
+        ``base + max_deform * cell * tanh(dv)``."""
+        base = self.base if idx is None else self.base[idx]
+        return base + self.cfg.max_deform * self.cell_3 * torch.tanh(dv_raw)
+
+    def _mlp_rows(self, idx: torch.Tensor | None, bf16: bool = False) -> torch.Tensor:
         """The MLP on the encoded grid vertices ``idx`` (all when None), ``MLP_CHUNK`` rows at a time: the
         activations of a chunk stay in the CPU cache (measured, 1 thread, 128 hidden: 31k rows 54 ms in one
         piece, 20 ms in chunks of 1024; 8k rows 7.2 vs 5.6 ms). Rows are independent, so the values are those
-        of one call up to float rounding."""
+        of one call up to float rounding. Without gradients, the side thread (if any) evaluates the second half
+        of the chunks. ``bf16``: under CPU bfloat16 autocast."""
         n = len(self.pe) if idx is None else len(idx)
-        if n <= MLP_CHUNK:
-            return self.mlp.net(self.pe if idx is None else self.pe[idx])
-        parts = []
-        for i in range(0, n, MLP_CHUNK):
-            rows = slice(i, i + MLP_CHUNK)
-            parts.append(self.mlp.net(self.pe[rows] if idx is None else self.pe[idx[rows]]))
-        return torch.cat(parts)
+        starts = list(range(0, n, MLP_CHUNK)) or [0]
+        grad = torch.is_grad_enabled()
+
+        def rows(chunk_starts: list[int]) -> list[torch.Tensor]:
+            # grad mode and autocast are thread-local: set them in whichever thread runs this
+            with torch.set_grad_enabled(grad), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                return [self.mlp.net(self.pe[i:i + MLP_CHUNK] if idx is None else self.pe[idx[i:i + MLP_CHUNK]])
+                        for i in chunk_starts]
+
+        if self.side is None or grad or len(starts) < 2:
+            parts = rows(starts)
+        else:
+            half = (len(starts) + 1) // 2
+            job = self.side.submit(rows, starts[half:])
+            parts = rows(starts[:half]) + job.result()
+        return parts[0] if len(parts) == 1 else torch.cat(parts)
 
     def eikonal(self, s_cells: torch.Tensor, verts: torch.Tensor, v0_mx3: torch.Tensor,
                 gen: torch.Generator) -> torch.Tensor:
@@ -360,7 +404,7 @@ class _Surface:
         self.fld, self.grid, self.cfg, self.clock = fld, grid, cfg, clock
         self.banded = cfg.param == "mlp" and cfg.narrow_band
         self.band: Band | None = None
-        self.s_v = self.v_v = None
+        self._tets_local = self._edges_b = np.zeros((0, 4), dtype=np.int64)
         self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
                       "grad_verts": 0, "backprop_verts": 0}
         self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
@@ -375,13 +419,15 @@ class _Surface:
         never sees them (at most a crossing tet whose |s| is below bfloat16's resolution, ~0.4 % of |s|, and
         more than a ring away from any other crossing tet could be left out until the next pass).
         """
-        with self.clock("full_pass"), torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=_BF16):
-            s, v = self.fld.evaluate()
-            s, v = s.float(), v.float()
+        with self.clock("full_pass"), torch.no_grad():
+            s = self.fld.sdf_of(self.fld._mlp_rows(None, bf16=_BF16)[:, 0], None).float()
             if self.band is not None:
                 self.stats["band_misses"] += self.band.misses(s)
-            self.s_v, self.v_v = s, v
             self.band = build_band(self.grid.tets_tx4, s, self.grid.grid_shape, self.cfg.band_rings)
+            local = torch.full((len(s),), -1, dtype=torch.int64)
+            local[self.band.vert_ids_n] = torch.arange(self.band.n_verts)
+            self._tets_local = local[self.band.tets_bx4].numpy()
+            self._edges_b = self.tet_edges[self.band.tet_ids_b].numpy()
         self.stats["full_passes"] += 1
         self.stats["band_verts"].append(float(self.band.n_verts))
         self.stats["band_tets"].append(float(self.band.n_tets))
@@ -409,34 +455,27 @@ class _Surface:
     def _band_mesh(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The field on the band without gradients; the mesh from it, with the SDF and position of every crossing
         tet's vertex as leaf tensors (every vertex of a crossing tet is an end of a crossing edge, and no other
-        vertex reaches the mesh). :meth:`backward_field` carries their gradients into the MLP."""
+        vertex reaches the mesh). :meth:`backward_field` carries their gradients into the MLP. The topology comes
+        from :func:`band_march` (compiled); positions are computed for the crossing tets' vertices only."""
         with self.clock("field"), torch.no_grad():
-            s_n, v_n = self.fld.evaluate(self.band.vert_ids_n)
+            out = self.fld._mlp_rows(self.band.vert_ids_n)
+            s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
         if self.band.boundary_flipped(s_n):
             self.stats["boundary_rebuilds"] += 1
             self.full_pass()
             with self.clock("field"), torch.no_grad():
-                s_n, v_n = self.fld.evaluate(self.band.vert_ids_n)
+                out = self.fld._mlp_rows(self.band.vert_ids_n)
+                s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
         with self.clock("marching_tets"):
-            ids = self.band.vert_ids_n
-            s_v, v_v = self.s_v.clone(), self.v_v.clone()
-            s_v[ids], v_v[ids] = s_n, v_n
-            n_in = (s_v < 0)[self.band.tets_bx4].sum(-1)
-            cross = (n_in > 0) & (n_in < 4)
-            tets_c = self.band.tets_bx4[cross]
-            edges_c = self.tet_edges[self.band.tet_ids_b[cross]]
-            used = torch.zeros(len(s_v), dtype=torch.bool)
-            used[tets_c.reshape(-1)] = True
-            vc = torch.nonzero(used, as_tuple=True)[0]
-            s_c = s_v[vc].requires_grad_(True)
-            v_c = v_v[vc].requires_grad_(True)
-            # march on the crossing tets' vertices only (local indices keep the global order, so the mesh is
-            # the one of the whole grid, and no gradient passes through grid-sized tensors)
-            local = torch.full((len(s_v),), -1, dtype=torch.int64)
-            local[vc] = torch.arange(len(vc))
-            mv, mf = marching_tets(v_c, local[tets_c], s_c * self.fld.cell, tet_edges_tx6=edges_c,
-                                   n_edges=self.n_edges)
-        self.s_v, self.v_v = s_v, v_v
+            bm = band_march(s_n, self._tets_local, self._edges_b, self.n_edges)
+            vc_n = torch.from_numpy(bm.vert_ids_c)
+            vc = self.band.vert_ids_n[vc_n]
+            with torch.no_grad():
+                v_c = self.fld.verts_of(out[vc_n, 1:], vc)
+            s_c = s_n[vc_n].requires_grad_(True)
+            v_c = v_c.requires_grad_(True)
+            mv = interpolate_surface(v_c, s_c * self.fld.cell, bm.edge_a_m, bm.edge_b_m)
+            mf = torch.from_numpy(bm.faces_fx3)
         self._leaves = (vc, s_c, v_c)
         self.stats["grad_verts"] += len(vc)
         return s_c, v_c, mv, mf
@@ -526,14 +565,8 @@ def optimise_dmtet(
         (``history["rescued_steps"]``). ``history["empty_steps"]`` counts the steps with an empty mesh.
         ``timings["torch_threads"]``: the intra-op threads it ran with (``cfg.threads``, or the caller's for 0).
     """
-    before = torch.get_num_threads()
-    if cfg.threads and cfg.threads != before:
-        torch.set_num_threads(cfg.threads)
-    try:
+    with _torch_threads(cfg.threads or torch.get_num_threads()):
         return _optimise(grid, K_vx3x3, T_cam_world_vx4x4, masks_vxhxw, cfg, init_sdf_v, table_z)
-    finally:
-        if torch.get_num_threads() != before:
-            torch.set_num_threads(before)
 
 
 def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray, masks_vxhxw: np.ndarray,
@@ -557,7 +590,9 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     t0 = time.perf_counter()
     clamp = cfg.start_band if cfg.param == "vertex" else (cfg.mlp_fit_clamp or np.inf)
     sdf0_cells = np.clip(sdf0 / cell, -clamp, clamp)
-    fld = _Field(grid, torch.from_numpy(sdf0_cells), fixed, cfg, gen)
+    n_fit = cfg.fit_threads or default_threads()[0]
+    with _torch_threads(n_fit if cfg.param == "mlp" else torch.get_num_threads()):
+        fld = _Field(grid, torch.from_numpy(sdf0_cells), fixed, cfg, gen)
     t_fit = time.perf_counter() - t0
     # the schedule shape is shared; the MLP's weights step at mlp_lr instead of lr (in cells); L_init runs at a
     # lower learning rate from the sphere start (the paper, Sec. IV-B; a hull start is the fast mode's refinement)
@@ -574,7 +609,15 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     clock = _Clock()
     surf = _Surface(fld, grid, cfg, clock)
     n_run = 0
-    pool = _render_pool(min(nb, torch.get_num_threads()))
+    side = None
+    if cfg.param == "mlp" and (cfg.side_thread == "on" or (
+            cfg.side_thread == "auto" and torch.get_num_threads() == 1 and default_threads()[0] >= 2)):
+        side = _side_pool()
+    fld.side = side
+    eik_side = side if cfg.lambda_eikonal > 0 else None
+    # with a side thread the main thread renders alone (measured faster than both threads rendering while the side
+    # thread runs eq. 4); without one, the views render on the torch threads
+    pool = None if side is not None else _render_pool(min(nb, torch.get_num_threads()))
     bar = _progress_bar(cfg.iterations)
     for it in bar:
         n_run = it + 1
@@ -585,6 +628,7 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
         idx = rng.choice(V_views, size=nb, replace=False)
         s, verts, mv, mf = surf.extract(it)
         tgt = masks_t[idx]
+        eik_job = None
         if len(mf) == 0:
             hist["empty_steps"][0] += 1
             mask_l = losses.mask_loss_init(torch.zeros_like(tgt), tgt).sum()
@@ -601,6 +645,8 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
                 eik = loss * 0.0
             iou = 0.0
         else:
+            if eik_side is not None:  # eq. (4) and its gradient on the side thread while the views render
+                eik_job = eik_side.submit(_eikonal_grads, fld, s, verts, mv.detach(), gen, cfg.lambda_eikonal)
             with clock("render_loss"):
                 pred = _render_views(pool, mv, mf, K_all[idx], T_all[idx], h, w)
                 # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init")
@@ -610,16 +656,26 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
                 mask_l = per_view.sum()
                 pn, tn = pred.detach().numpy(), tgt.numpy()
                 iou = float(np.mean([silhouette_iou(pn[i], tn[i]) for i in range(nb)]))
-            with clock("eikonal"):
-                eik = fld.eikonal(s, verts, mv, gen) if cfg.lambda_eikonal > 0 else mask_l * 0.0
-            loss = cfg.lambda_mask * mask_l + cfg.lambda_eikonal * eik
+            if eik_job is None:
+                with clock("eikonal"):
+                    eik = fld.eikonal(s, verts, mv, gen) if cfg.lambda_eikonal > 0 else mask_l * 0.0
+                loss = cfg.lambda_mask * mask_l + cfg.lambda_eikonal * eik
+            else:
+                loss = cfg.lambda_mask * mask_l
         with clock("backward_step"):
             opt.zero_grad(set_to_none=True)
             if loss.requires_grad:
                 loss.backward()
         surf.backward_field()
+        if eik_job is not None:
+            with clock("eikonal_wait"):
+                eik, eik_grads = eik_job.result()
+                for p, g in zip(fld.params, eik_grads, strict=True):
+                    if g is not None:
+                        p.grad = g if p.grad is None else p.grad + g
+                loss = loss + cfg.lambda_eikonal * eik
         with clock("backward_step"):
-            if loss.requires_grad:
+            if loss.requires_grad or eik_job is not None:
                 opt.step()
         hist["loss"].append(float(loss.detach()))
         hist["mask_loss"].append(float(mask_l.detach()))
@@ -659,6 +715,8 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
         "ms_per_step": 1e3 * (total - t_fit) / n_it if cfg.iterations else 0.0,
         "steps_run": float(n_run),
         "torch_threads": float(torch.get_num_threads()),
+        "fit_threads": float(n_fit),
+        "side_thread": float(side is not None),
     }
     for k, v in clock.s.items():
         timings[f"{k}_ms_per_step"] = 1e3 * v / n_it
@@ -677,7 +735,38 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     )
 
 
+@contextmanager
+def _torch_threads(n: int) -> Iterator[None]:
+    """Run the block with ``n`` torch intra-op threads; the previous count is restored after."""
+    before = torch.get_num_threads()
+    if n != before:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+
+
 _POOLS: dict[int, ThreadPoolExecutor] = {}
+_SIDE: list[ThreadPoolExecutor] = []
+
+
+def _side_pool() -> ThreadPoolExecutor:
+    """One worker thread for torch work beside the loop, itself on 1 intra-op thread."""
+    if not _SIDE:
+        _SIDE.append(ThreadPoolExecutor(1, thread_name_prefix="torm-side", initializer=torch.set_num_threads,
+                                        initargs=(1,)))
+    return _SIDE[0]
+
+
+def _eikonal_grads(fld: _Field, s: torch.Tensor, verts: torch.Tensor, v0_mx3: torch.Tensor, gen: torch.Generator,
+                   lam: float) -> tuple[torch.Tensor, tuple[torch.Tensor | None, ...]]:
+    """(eq. (4) detached, gradients of ``lam`` * eq. (4) w.r.t. the field's parameters)."""
+    eik = fld.eikonal(s, verts, v0_mx3, gen)
+    if not eik.requires_grad:
+        return eik.detach(), tuple(None for _ in fld.params)
+    return eik.detach(), torch.autograd.grad(lam * eik, fld.params, allow_unused=True)
 
 
 def _render_pool(n: int) -> ThreadPoolExecutor | None:
@@ -692,13 +781,8 @@ def _render_pool(n: int) -> ThreadPoolExecutor | None:
 
 def _render_views(pool: ThreadPoolExecutor | None, mv: torch.Tensor, mf: torch.Tensor, K: np.ndarray, T: np.ndarray,
                   h: int, w: int) -> torch.Tensor:
-    """:func:`render_silhouettes` of the (V, ...) views, split over the pool's threads; same (V, h, w) result."""
-    adj = face_adjacency(mf.numpy(), len(mv))
-    if pool is None or len(K) < 2:
-        return render_silhouettes(mv, mf, K, T, h, w, adjacency_fx3=adj)
-    parts = [p for p in np.array_split(np.arange(len(K)), pool._max_workers) if len(p)]
-    futs = [pool.submit(render_silhouettes, mv, mf, K[p], T[p], h, w, adj) for p in parts]
-    return torch.cat([f.result() for f in futs])
+    """:func:`render_silhouettes` of the (V, ...) views, their compiled work spread over the pool's threads."""
+    return render_silhouettes(mv, mf, K, T, h, w, adjacency_fx3=face_adjacency(mf.numpy(), len(mv)), pool=pool)
 
 
 def _iou_all(verts: np.ndarray, faces: np.ndarray, K_all: np.ndarray, T_all: np.ndarray, masks: np.ndarray) -> float:

@@ -30,6 +30,8 @@ binary silhouette and are ignored.
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
+
 import numba as nb
 import numpy as np
 import torch
@@ -257,8 +259,18 @@ def _aa_pairs_kernel(uv, faces_fx3, adj_fx3, orient_f, tri_id_hw):
 def face_adjacency(faces_fx3: np.ndarray, n_verts: int) -> np.ndarray:
     """(F, 3) int64: the face across local edge k (vertices k, k+1 mod 3) of each face, -1 on a boundary.
 
-    Edges shared by more than two faces (non-manifold) get one arbitrary partner.
+    Edges shared by more than two faces (non-manifold) get one arbitrary partner. Compiled, linear in F
+    (half-edges bucketed by their smaller vertex); :func:`face_adjacency_reference` is the sort-based version it
+    is tested against.
     """
+    f = np.ascontiguousarray(faces_fx3, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return -np.ones((0, 3), dtype=np.int64)
+    return _face_adjacency_kernel(f, int(n_verts))
+
+
+def face_adjacency_reference(faces_fx3: np.ndarray, n_verts: int) -> np.ndarray:
+    """:func:`face_adjacency` by sorting edge keys in numpy (the slow reference path)."""
     F = len(faces_fx3)
     adj = -np.ones((F, 3), dtype=np.int64)
     if F == 0:
@@ -278,10 +290,63 @@ def face_adjacency(faces_fx3: np.ndarray, n_verts: int) -> np.ndarray:
     return adj_flat.reshape(F, 3)
 
 
+@nb.njit(cache=True, nogil=True)
+def _face_adjacency_kernel(faces_fx3, n_verts):  # pragma: no cover - compiled
+    F = faces_fx3.shape[0]
+    start = np.zeros(n_verts + 1, dtype=np.int64)
+    for h in range(3 * F):
+        a = faces_fx3[h // 3, h % 3]
+        b = faces_fx3[h // 3, (h % 3 + 1) % 3]
+        start[min(a, b) + 1] += 1
+    for v in range(n_verts):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    bucket = np.empty(3 * F, dtype=np.int64)
+    for h in range(3 * F):
+        a = faces_fx3[h // 3, h % 3]
+        b = faces_fx3[h // 3, (h % 3 + 1) % 3]
+        lo = min(a, b)
+        bucket[fill[lo]] = h
+        fill[lo] += 1
+    adj = -np.ones(3 * F, dtype=np.int64)
+    for v in range(n_verts):
+        for i in range(start[v], start[v + 1]):
+            hi_ = bucket[i]
+            if adj[hi_] >= 0:
+                continue
+            fa = faces_fx3[hi_ // 3, hi_ % 3]
+            fb = faces_fx3[hi_ // 3, (hi_ % 3 + 1) % 3]
+            top = max(fa, fb)
+            for j in range(i + 1, start[v + 1]):
+                hj = bucket[j]
+                if adj[hj] >= 0:
+                    continue
+                ga = faces_fx3[hj // 3, hj % 3]
+                gb = faces_fx3[hj // 3, (hj % 3 + 1) % 3]
+                if max(ga, gb) == top:
+                    adj[hi_] = hj // 3
+                    adj[hj] = hi_ // 3
+                    break
+    return adj.reshape(F, 3)
+
+
+@nb.njit(cache=True, nogil=True)
+def _orientation_kernel(uv_mx2, faces_fx3):  # pragma: no cover - compiled
+    """Sign (+1, -1, 0) of each projected triangle's signed area."""
+    F = faces_fx3.shape[0]
+    out = np.empty(F, dtype=np.int8)
+    for f in range(F):
+        a = faces_fx3[f, 0]
+        b = faces_fx3[f, 1]
+        c = faces_fx3[f, 2]
+        area = ((uv_mx2[b, 0] - uv_mx2[a, 0]) * (uv_mx2[c, 1] - uv_mx2[a, 1])
+                - (uv_mx2[b, 1] - uv_mx2[a, 1]) * (uv_mx2[c, 0] - uv_mx2[a, 0]))
+        out[f] = 1 if area > 0 else (-1 if area < 0 else 0)
+    return out
+
+
 def _screen_orientation(uv_mx2: np.ndarray, faces_fx3: np.ndarray) -> np.ndarray:
-    a, b, c = uv_mx2[faces_fx3[:, 0]], uv_mx2[faces_fx3[:, 1]], uv_mx2[faces_fx3[:, 2]]
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    return np.sign(area).astype(np.int8)
+    return _orientation_kernel(np.ascontiguousarray(uv_mx2, dtype=np.float64), faces_fx3)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -373,6 +438,7 @@ def render_silhouettes(
     H: int,
     W: int,
     adjacency_fx3: np.ndarray | None = None,
+    pool: Executor | None = None,
 ) -> torch.Tensor:
     """Antialiased silhouettes (V, H, W) of one mesh in V views, differentiable w.r.t. ``verts_mx3``.
 
@@ -383,6 +449,9 @@ def render_silhouettes(
         T_cam_world_vx4x4: (V, 4, 4) or (4, 4) world-to-camera transforms, OpenCV axes.
         H, W: image size in pixels.
         adjacency_fx3: optional precomputed :func:`face_adjacency` of ``faces_fx3``.
+        pool: optional executor that runs the compiled per-view work (rasterisation, silhouette-edge search; it
+            releases the GIL) of the views in parallel; the torch work stays in the calling thread (a torch op in
+            a pool thread would start its own OpenMP team at the default size).
 
     Returns:
         (V, H, W) tensor in the dtype of ``verts_mx3``: hard coverage plus the edge antialiasing term.
@@ -398,12 +467,15 @@ def render_silhouettes(
     uvz_np = uvz.detach().cpu().numpy().astype(np.float64)
     adj = face_adjacency(faces, len(verts_mx3)) if adjacency_fx3 is None else adjacency_fx3
     hard = np.zeros((V, H, W), dtype=np.float32)
-    recs = []
-    for i in range(V):
+
+    def one_view(i: int) -> np.ndarray:
         tri, _ = rasterize(uvz_np[i], faces, H, W)
         hard[i] = tri >= 0
-        orient = _screen_orientation(uvz_np[i, :, :2], faces)
-        r = _aa_pairs_kernel(np.ascontiguousarray(uvz_np[i, :, :2]), faces, adj, orient, tri)
+        uv = np.ascontiguousarray(uvz_np[i, :, :2])
+        return _aa_pairs_kernel(uv, faces, adj, _orientation_kernel(uv, faces), tri)
+
+    recs = []
+    for i, r in enumerate(map(one_view, range(V)) if pool is None or V < 2 else pool.map(one_view, range(V))):
         if len(r):
             r = r.copy()
             r[:, 0] += i * H * W
