@@ -193,6 +193,26 @@ def test_side_thread_gives_the_same_run(scene):
         DMTetConfig(side_thread="yes")
 
 
+def test_pools_are_forgotten_in_a_forked_child():
+    """A forked child must not reuse the parent's pool objects (their threads do not exist there)."""
+    import os
+
+    from torm.reconstruction.dmtet import _SIDE, _side_pool
+
+    parent = _side_pool()
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child: a fresh pool that runs work
+        ok = not _SIDE and _side_pool() is not parent and _side_pool().submit(lambda: 7).result(timeout=10) == 7
+        os.write(w, b"1" if ok else b"0")
+        os._exit(0)
+    os.close(w)
+    got = os.read(r, 1)
+    os.waitpid(pid, 0)
+    assert got == b"1"
+    assert _side_pool() is parent
+
+
 def test_split_evaluation_keeps_grad_mode_and_autocast():
     """Half the chunks run on the side thread: same values in float32 and bfloat16, no graph without grad."""
     from torm.reconstruction.dmtet import MLP_CHUNK, _side_pool

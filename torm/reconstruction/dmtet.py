@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -750,6 +751,16 @@ def _torch_threads(n: int) -> Iterator[None]:
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 _SIDE: list[ThreadPoolExecutor] = []
+
+
+def _forget_pools() -> None:
+    """In a forked child the pools' threads do not exist: start new ones on first use (else a submit would wait
+    forever)."""
+    _POOLS.clear()
+    _SIDE.clear()
+
+
+os.register_at_fork(after_in_child=_forget_pools)
 
 
 def _side_pool() -> ThreadPoolExecutor:
