@@ -405,7 +405,9 @@ class _Surface:
         self.fld, self.grid, self.cfg, self.clock = fld, grid, cfg, clock
         self.banded = cfg.param == "mlp" and cfg.narrow_band
         self.band: Band | None = None
-        self._tets_local = self._edges_b = np.zeros((0, 4), dtype=np.int64)
+        # the band's tets as indices into its vertices, and their grid edge ids (set by every full pass)
+        self._tets_local = np.zeros((0, 4), dtype=np.int64)
+        self._edges_b = np.zeros((0, 6), dtype=np.int64)
         self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
                       "grad_verts": 0, "backprop_verts": 0}
         self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
