@@ -9,7 +9,7 @@ import trimesh
 
 from torm.geometry import invert_T, look_at_cv
 from torm.reconstruction.raster import (
-    _screen_orientation,
+    _orientation_kernel,
     face_adjacency,
     face_adjacency_reference,
     render_depth,
@@ -123,10 +123,10 @@ def test_face_adjacency_matches_sort_reference():
     assert (face_adjacency(open_, len(m.vertices)) == -1).any()
 
 
-def test_screen_orientation_signs():
+def test_orientation_kernel_signs():
     uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [2.0, 0.0]])
     faces = np.array([[0, 1, 2], [0, 2, 1], [0, 1, 3]], dtype=np.int64)
-    assert _screen_orientation(uv, faces).tolist() == [1, -1, 0]
+    assert _orientation_kernel(uv, faces).tolist() == [1, -1, 0]
 
 
 @pytest.mark.parametrize("mesh_kind", ["cube", "sphere"])

@@ -115,7 +115,7 @@ class DMTetConfig:
             ``benchmarks/results/reconstruction_paper_2threads.json``; a first pair: 191 s and 254 s). The second
             core is used by ``side_thread`` instead.
         fit_threads: torch intra-op threads for the MLP's start fit (``mlp_fit_iters`` steps on batches of 8192
-            vertices, large enough to gain from more cores: 6.4 s on 2 threads vs 11.1 s on 1, syn5); 0 = what
+            vertices, large enough to gain from more cores: 6-9 s on 2 threads vs 11 s on 1, syn5, four runs); 0 = what
             :func:`torm.runtime.default_threads` gives (``TORM_THREADS``, else the idle cores). The periodic full
             passes stay on ``threads``: switching them to 2 threads made the whole run slower (29.3 vs 28.1
             ms/step), the idle OpenMP workers competing with the 1-thread loop.

@@ -345,10 +345,6 @@ def _orientation_kernel(uv_mx2, faces_fx3):  # pragma: no cover - compiled
     return out
 
 
-def _screen_orientation(uv_mx2: np.ndarray, faces_fx3: np.ndarray) -> np.ndarray:
-    return _orientation_kernel(np.ascontiguousarray(uv_mx2, dtype=np.float64), faces_fx3)
-
-
 # ----------------------------------------------------------------------------------------------------------
 # Projection
 # ----------------------------------------------------------------------------------------------------------
