@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from torm.reconstruction.band_march import band_march, interpolate_surface
+from torm.reconstruction.band_march import BandMarchWork, band_march, interpolate_surface
 from torm.reconstruction.marching_tets import NUM_TRI_16, marching_tets
 from torm.reconstruction.narrow_band import build_band
 from torm.reconstruction.tetgrid import build_tet_grid
@@ -89,3 +89,24 @@ def test_band_march_empty_and_bad_input():
         band_march(np.ones(4, np.float32), tets, np.zeros((1, 5), np.int64), 6)
     with pytest.raises(ValueError, match=r"\(Nb,\)"):
         band_march(np.ones((4, 1), np.float32), tets, edges, 6)
+
+
+def test_band_march_reused_work_gives_the_fresh_result():
+    """One :class:`BandMarchWork` across calls on different fields (and band sizes) changes nothing; a work object
+    of another grid is refused."""
+    grid = build_tet_grid(BOUNDS, 9, use_cache=False)
+    n_edges = len(grid.edges_ex2)
+    work = BandMarchWork(n_edges)
+    v = grid.verts_vx3.float()
+    g = torch.Generator().manual_seed(3)
+    for radius, rings in ((0.03, 1), (0.06, 2), (0.02, 0), (0.03, 1)):
+        s = (v - torch.tensor([0.0, 0.0, 0.06])).norm(dim=1) - radius + 0.003 * torch.randn(len(v), generator=g)
+        band, tets_l, edges_b = _band_inputs(grid, s, rings)
+        fresh = band_march(s[band.vert_ids_n], tets_l, edges_b, n_edges)
+        again = band_march(s[band.vert_ids_n], tets_l, edges_b, n_edges, work)
+        assert len(fresh.faces_fx3) > 0
+        for a, b in zip(fresh, again, strict=True):
+            assert np.array_equal(a, b)
+        assert (work.slot == -1).all()
+    with pytest.raises(ValueError, match="BandMarchWork"):
+        band_march(s[band.vert_ids_n], tets_l, edges_b, n_edges + 1, work)

@@ -44,12 +44,38 @@ class BandMesh(NamedTuple):
     faces_fx3: np.ndarray
 
 
+class BandMarchWork:
+    """Buffers :func:`band_march` reuses from call to call on one grid (``n_edges`` edges).
+
+    Allocating them per call cost more than the marching itself (measured on syn12's band, 72k tets, 368k grid
+    edges: 2.3 ms with fresh arrays, 1.0 ms with these): arrays over 128 KiB come from fresh ``mmap`` pages that
+    the kernel maps and zeroes on first touch. ``slot`` holds -1 between calls.
+    """
+
+    def __init__(self, n_edges: int) -> None:
+        self.n_edges = int(n_edges)
+        self.slot = np.full(self.n_edges, -1, dtype=np.int32)
+        self._buf = np.empty(0, dtype=np.int64)
+
+    def scratch(self, n_tets: int) -> np.ndarray:
+        """(14 * n_tets,) int64 scratch: crossing tets and cases (n_tets each), found edge ends (6 n_tets each)."""
+        if len(self._buf) < 14 * n_tets:
+            self._buf = np.empty(14 * n_tets, dtype=np.int64)
+        return self._buf
+
+
 @nb.njit(cache=True, nogil=True)
-def _band_march_kernel(s_n, tets_bx4, edges_bx6, n_edges, tet_edges, table, num):  # pragma: no cover - compiled
+def _band_march_kernel(s_n, tets_bx4, edges_bx6, slot, scratch, tet_edges, table, num):  # pragma: no cover
+    """Crossing tets -> crossing edges (numbered in the order found, then ranked by edge id with one sequential
+    scan of ``slot``, no sort) -> faces. ``slot`` (all -1 on entry and on exit) is the only array indexed by edge
+    id. Measured on syn12's band against a version with four edge-indexed arrays and a sort: 2.4 -> 0.9 ms."""
     Tb = tets_bx4.shape[0]
     Nb = s_n.shape[0]
-    cross = np.empty(Tb, dtype=np.int64)
-    case = np.empty(Tb, dtype=np.int64)
+    n_edges = slot.shape[0]
+    cross = scratch[:Tb]
+    case = scratch[Tb:2 * Tb]
+    found_a = scratch[2 * Tb:8 * Tb]
+    found_b = scratch[8 * Tb:14 * Tb]
     n_c = 0
     n_faces = 0
     for t in range(Tb):
@@ -62,44 +88,42 @@ def _band_march_kernel(s_n, tets_bx4, edges_bx6, n_edges, tet_edges, table, num)
             case[n_c] = c
             n_c += 1
             n_faces += num[c]
-    used = np.zeros(Nb, dtype=np.bool_)
-    flag = np.zeros(n_edges, dtype=np.bool_)
-    end_a = np.empty(n_edges, dtype=np.int64)
-    end_b = np.empty(n_edges, dtype=np.int64)
-    ids = np.empty(6 * n_c, dtype=np.int64)
+    local = np.full(Nb, -1, dtype=np.int64)  # 0 marks a vertex of a crossing tet, then its index in vc
     n_e = 0
     for i in range(n_c):
         t = cross[i]
         for k in range(4):
-            used[tets_bx4[t, k]] = True
+            local[tets_bx4[t, k]] = 0
         for j in range(6):
             a = tets_bx4[t, tet_edges[j, 0]]
             b = tets_bx4[t, tet_edges[j, 1]]
             if (s_n[a] < 0) != (s_n[b] < 0):
                 e = edges_bx6[t, j]
-                if not flag[e]:
-                    flag[e] = True
-                    end_a[e] = min(a, b)
-                    end_b[e] = max(a, b)
-                    ids[n_e] = e
+                if slot[e] < 0:  # crossing edge -> its number in the order found
+                    slot[e] = n_e
+                    found_a[n_e] = min(a, b)
+                    found_b[n_e] = max(a, b)
                     n_e += 1
-    local = np.full(Nb, -1, dtype=np.int64)
     vc = np.empty(Nb, dtype=np.int64)
     n_v = 0
     for v in range(Nb):
-        if used[v]:
+        if local[v] == 0:
             local[v] = n_v
             vc[n_v] = v
             n_v += 1
-    ids = np.sort(ids[:n_e])
-    slot = np.empty(n_edges, dtype=np.int64)
+    rank = np.empty(n_e, dtype=np.int64)  # found number -> position by increasing edge id
+    ids = np.empty(n_e, dtype=np.int64)
     ea = np.empty(n_e, dtype=np.int64)
     eb = np.empty(n_e, dtype=np.int64)
-    for m in range(n_e):
-        e = ids[m]
-        slot[e] = m
-        ea[m] = local[end_a[e]]
-        eb[m] = local[end_b[e]]
+    m = 0
+    for e in range(n_edges):
+        q = slot[e]
+        if q >= 0:
+            rank[q] = m
+            ids[m] = e
+            ea[m] = local[found_a[q]]
+            eb[m] = local[found_b[q]]
+            m += 1
     faces = np.empty((n_faces, 3), dtype=np.int64)
     f = 0
     for want in (1, 2):
@@ -109,13 +133,15 @@ def _band_march_kernel(s_n, tets_bx4, edges_bx6, n_edges, tet_edges, table, num)
                 continue
             t = cross[i]
             for q in range(3 * want):
-                faces[f + q // 3, q % 3] = slot[edges_bx6[t, table[c, q]]]
+                faces[f + q // 3, q % 3] = rank[slot[edges_bx6[t, table[c, q]]]]
             f += want
+    for m in range(n_e):
+        slot[ids[m]] = -1
     return vc[:n_v], ea, eb, faces
 
 
 def band_march(s_n: np.ndarray | torch.Tensor, tets_bx4: np.ndarray, edges_bx6: np.ndarray,
-               n_edges: int) -> BandMesh:
+               n_edges: int, work: BandMarchWork | None = None) -> BandMesh:
     """Surface topology of the zero level set of ``s_n`` on the band tets.
 
     Args:
@@ -125,6 +151,8 @@ def band_march(s_n: np.ndarray | torch.Tensor, tets_bx4: np.ndarray, edges_bx6: 
         edges_bx6: (Tb, 6) int64 ids in ``[0, n_edges)`` of each tet's edges in ``TET_EDGES_6x2`` order
             (:attr:`TetGrid.tet_edges_tx6` of the band tets).
         n_edges: number of edges of the grid.
+        work: buffers to reuse across calls on the same grid (:class:`BandMarchWork` of ``n_edges``); fresh ones
+            when None.
 
     Returns:
         :class:`BandMesh`; all arrays empty when no tet crosses zero.
@@ -136,8 +164,13 @@ def band_march(s_n: np.ndarray | torch.Tensor, tets_bx4: np.ndarray, edges_bx6: 
     edges = np.ascontiguousarray(edges_bx6, dtype=np.int64)
     if tets.ndim != 2 or tets.shape[1] != 4 or edges.shape != (len(tets), 6):
         raise ValueError(f"band_march: need tets (Tb, 4) and edges (Tb, 6), got {tets.shape} and {edges.shape}")
-    vc, ea, eb, faces = _band_march_kernel(np.ascontiguousarray(s), tets, edges, int(n_edges), _TET_EDGES,
-                                           _TABLE, _NUM)
+    if work is None:
+        work = BandMarchWork(n_edges)
+    elif work.n_edges != int(n_edges):
+        raise ValueError(f"band_march: the work buffers are for {work.n_edges} edges, this grid has {n_edges}; "
+                         "make a BandMarchWork(n_edges) per grid")
+    vc, ea, eb, faces = _band_march_kernel(np.ascontiguousarray(s), tets, edges, work.slot,
+                                           work.scratch(len(tets)), _TET_EDGES, _TABLE, _NUM)
     return BandMesh(vc, ea, eb, faces)
 
 
@@ -156,4 +189,4 @@ def interpolate_surface(verts_cx3: torch.Tensor, sdf_c: torch.Tensor, edge_a_m: 
     return (verts_cx3[ea] * s_b - verts_cx3[eb] * s_a) / (s_b - s_a)
 
 
-__all__ = ["BandMesh", "band_march", "interpolate_surface"]
+__all__ = ["BandMarchWork", "BandMesh", "band_march", "interpolate_surface"]

@@ -38,7 +38,7 @@ import torch
 
 from torm.errors import ConfigError
 from torm.reconstruction import losses
-from torm.reconstruction.band_march import band_march, interpolate_surface
+from torm.reconstruction.band_march import BandMarchWork, band_march, interpolate_surface
 from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.mlp import SDFDeformMLP
 from torm.reconstruction.narrow_band import Band, build_band
@@ -52,6 +52,8 @@ log = logging.getLogger(__name__)
 _PARAMS = ("mlp", "vertex")
 #: rows of the MLP evaluated at a time (see :meth:`_Field._mlp_rows`)
 MLP_CHUNK = 1024
+#: rows from which the band's gradient pass through the MLP runs in two halves (see ``_Surface._chain``)
+GRAD_SPLIT_ROWS = 512
 _STARTS = ("sphere", "hull")
 _LOSSES = ("init", "envelope", "robust")
 
@@ -413,6 +415,7 @@ class _Surface:
         self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         if self.banded:
             self.tet_edges, self.n_edges = grid.tet_edges_tx6, len(grid.edges_ex2)
+            self._work = BandMarchWork(self.n_edges)
 
     def full_pass(self) -> None:
         """Evaluate every vertex without gradients, count band misses, rebuild the band.
@@ -459,7 +462,12 @@ class _Surface:
         """The field on the band without gradients; the mesh from it, with the SDF and position of every crossing
         tet's vertex as leaf tensors (every vertex of a crossing tet is an end of a crossing edge, and no other
         vertex reaches the mesh). :meth:`backward_field` carries their gradients into the MLP. The topology comes
-        from :func:`band_march` (compiled); positions are computed for the crossing tets' vertices only."""
+        from :func:`band_march` (compiled); positions are computed for the crossing tets' vertices only.
+
+        Measured and dropped: the band's rows in bfloat16 except the crossing tets' vertices (float32, as the
+        mesh needs): slower on syn12 (12.9 vs about 10 ms/step for this stage), because bfloat16 autocast is only
+        1.6x faster than float32 on 1024-row chunks of this MLP here and about half of the band's rows are
+        crossing tets' vertices; the bfloat16 SDF also differed by up to 0.10 cells from float32."""
         with self.clock("field"), torch.no_grad():
             out = self.fld._mlp_rows(self.band.vert_ids_n)
             s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
@@ -470,7 +478,7 @@ class _Surface:
                 out = self.fld._mlp_rows(self.band.vert_ids_n)
                 s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
         with self.clock("marching_tets"):
-            bm = band_march(s_n, self._tets_local, self._edges_b, self.n_edges)
+            bm = band_march(s_n, self._tets_local, self._edges_b, self.n_edges, self._work)
             vc_n = torch.from_numpy(bm.vert_ids_c)
             vc = self.band.vert_ids_n[vc_n]
             with torch.no_grad():
@@ -500,8 +508,31 @@ class _Surface:
             k = torch.nonzero((g_s != 0) | (g_v != 0).any(-1), as_tuple=True)[0]
             self.stats["backprop_verts"] += len(k)
             if len(k):
-                s_k, v_k = self.fld.evaluate(vc[k])
-                torch.autograd.backward([s_k, v_k], [g_s[k], g_v[k]])
+                self._chain(vc[k], g_s[k], g_v[k])
+
+    def _chain(self, ids: torch.Tensor, g_s: torch.Tensor, g_v: torch.Tensor) -> None:
+        """Add to the parameters' ``.grad`` the gradient of sum(g_s * sdf + g_v * position) over the grid vertices
+        ``ids``. From ``GRAD_SPLIT_ROWS`` rows up, in two halves whose gradients are summed in a fixed order (the
+        side thread, if any, computes the second half meanwhile): the same values with the side thread on or off."""
+        params = self.fld.params
+
+        def grads(lo: int, hi: int) -> tuple[torch.Tensor | None, ...]:
+            with torch.enable_grad():
+                s_k, v_k = self.fld.evaluate(ids[lo:hi])
+                return torch.autograd.grad([s_k, v_k], params, [g_s[lo:hi], g_v[lo:hi]], allow_unused=True)
+
+        n = len(ids)
+        if n < GRAD_SPLIT_ROWS:
+            total = grads(0, n)
+        else:
+            half = (n + 1) // 2
+            job = self.fld.side.submit(grads, half, n) if self.fld.side is not None else None
+            first = grads(0, half)
+            second = job.result() if job is not None else grads(half, n)
+            total = tuple(a if b is None else b if a is None else a + b for a, b in zip(first, second, strict=True))
+        for p, g in zip(params, total, strict=True):
+            if g is not None:
+                p.grad = g if p.grad is None else p.grad + g
 
 
 class _Clock:
@@ -619,7 +650,8 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     fld.side = side
     eik_side = side if cfg.lambda_eikonal > 0 else None
     # with a side thread the main thread renders alone (measured faster than both threads rendering while the side
-    # thread runs eq. 4); without one, the views render on the torch threads
+    # thread runs eq. 4; letting the side thread take views once eq. 4 is done measured no gain, syn12); without
+    # one, the views render on the torch threads
     pool = None if side is not None else _render_pool(min(nb, torch.get_num_threads()))
     bar = _progress_bar(cfg.iterations)
     for it in bar:
