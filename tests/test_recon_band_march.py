@@ -9,7 +9,7 @@ import torch
 
 from torm.reconstruction.band_march import BandMarchWork, band_march, interpolate_surface
 from torm.reconstruction.marching_tets import NUM_TRI_16, marching_tets
-from torm.reconstruction.narrow_band import build_band
+from torm.reconstruction.narrow_band import build_band, build_band_reference
 from torm.reconstruction.tetgrid import build_tet_grid
 
 BOUNDS = [[-0.1, -0.08, 0.0], [0.1, 0.08, 0.12]]
@@ -110,3 +110,28 @@ def test_band_march_reused_work_gives_the_fresh_result():
         assert (work.slot == -1).all()
     with pytest.raises(ValueError, match="BandMarchWork"):
         band_march(s[band.vert_ids_n], tets_l, edges_b, n_edges + 1, work)
+
+
+@pytest.mark.parametrize("rings", [0, 1, 2, 8])
+def test_compiled_band_equals_the_torch_reference(rings):
+    """:func:`build_band` (compiled) gives every field of :func:`build_band_reference`, on a lattice with unequal
+    axes (so an axis mix-up in the dilation shows), and the empty band."""
+    grid = build_tet_grid([[-0.1, -0.05, 0.0], [0.1, 0.08, 0.06]], 11, use_cache=False)
+    assert len(set(grid.grid_shape)) == 3
+    g = torch.Generator().manual_seed(rings)
+    v = grid.verts_vx3.float()
+    s = torch.minimum((v - torch.tensor([-0.04, 0.0, 0.03])).norm(dim=1) - 0.025,
+                      (v - torch.tensor([0.05, 0.02, 0.02])).norm(dim=1) - 0.02)
+    s = s + 0.004 * torch.randn(len(s), generator=g)
+    for field in (s, torch.ones_like(s)):
+        fast = build_band(grid.tets_tx4, field, grid.grid_shape, rings)
+        ref = build_band_reference(grid.tets_tx4, field, grid.grid_shape, rings)
+        for name in ("tet_ids_b", "tets_bx4", "vert_ids_n", "boundary_n", "inside_n", "in_band_v", "inside_v"):
+            a, b = getattr(fast, name), getattr(ref, name)
+            assert a.dtype == b.dtype and torch.equal(a, b), name
+        assert fast.rings == ref.rings == rings
+    assert build_band(grid.tets_tx4, s, grid.grid_shape, rings).n_tets > 0
+    with pytest.raises(ValueError, match="rings"):
+        build_band(grid.tets_tx4, s, grid.grid_shape, -1)
+    with pytest.raises(ValueError, match="lattice"):
+        build_band(grid.tets_tx4, s[:-1], grid.grid_shape, 1)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 import torch
 
@@ -81,12 +82,112 @@ def build_band(tets_tx4: torch.Tensor, s_v: torch.Tensor, lattice_shape: tuple[i
 
     ``lattice_shape``: vertices per axis ``(nx + 1, ny + 1, nz + 1)`` with vertex ``(i, j, k)`` at index
     ``(i * (ny + 1) + j) * (nz + 1) + k`` (:attr:`TetGrid.grid_shape`); ``rings`` >= 0 lattice steps of dilation.
+    Compiled (CPU tensors); :func:`build_band_reference` is the torch version it is tested against (measured on
+    a syn12-sized grid, 304k tets, ten spheres, 1 thread: 20.3 ms -> 2.7 ms).
     """
+    _check_band_args(s_v, lattice_shape, rings)
+    tets = np.ascontiguousarray(tets_tx4.detach().cpu().numpy(), dtype=np.int64)
+    s = np.ascontiguousarray(s_v.detach().cpu().numpy())
+    nx, ny, nz = (int(n) for n in lattice_shape)
+    tet_ids, vert_ids, boundary_n, inside_v, in_band = _build_band_kernel(tets, s, nx, ny, nz, int(rings))
+    dev = s_v.device
+    tet_ids_t = torch.from_numpy(tet_ids).to(dev)
+    vert_ids_t = torch.from_numpy(vert_ids).to(dev)
+    inside_t = torch.from_numpy(inside_v).to(dev)
+    return Band(tet_ids_b=tet_ids_t, tets_bx4=tets_tx4.long()[tet_ids_t], vert_ids_n=vert_ids_t,
+                boundary_n=torch.from_numpy(boundary_n).to(dev), inside_n=inside_t[vert_ids_t],
+                in_band_v=torch.from_numpy(in_band).to(dev), inside_v=inside_t, rings=int(rings))
+
+
+def _check_band_args(s_v: torch.Tensor, lattice_shape: tuple[int, int, int], rings: int) -> int:
     if rings < 0:
         raise ValueError(f"build_band: rings must be >= 0 lattice steps, got {rings}")
     n_v = s_v.shape[0]
     if int(np.prod(lattice_shape)) != n_v:
         raise ValueError(f"build_band: lattice {lattice_shape} does not hold the {n_v} vertices of s_v")
+    return n_v
+
+
+@nb.njit(cache=True, nogil=True)
+def _dilate_axis(core, nx, ny, nz, axis, rings):  # pragma: no cover - compiled
+    """1-D max filter of half-width ``rings`` along one lattice axis (a cube's dilation is three of these)."""
+    out = np.zeros_like(core)
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if not core[(i * ny + j) * nz + k]:
+                    continue
+                if axis == 0:
+                    for a in range(max(0, i - rings), min(nx, i + rings + 1)):
+                        out[(a * ny + j) * nz + k] = True
+                elif axis == 1:
+                    for a in range(max(0, j - rings), min(ny, j + rings + 1)):
+                        out[(i * ny + a) * nz + k] = True
+                else:
+                    for a in range(max(0, k - rings), min(nz, k + rings + 1)):
+                        out[(i * ny + j) * nz + a] = True
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _build_band_kernel(tets, s, nx, ny, nz, rings):  # pragma: no cover - compiled
+    n_v = s.shape[0]
+    n_t = tets.shape[0]
+    inside = s < 0
+    core = np.zeros(n_v, dtype=np.bool_)
+    for t in range(n_t):
+        n_in = 0
+        for k in range(4):
+            if inside[tets[t, k]]:
+                n_in += 1
+        if 0 < n_in < 4:
+            for k in range(4):
+                core[tets[t, k]] = True
+    if rings > 0:
+        for axis in range(3):
+            core = _dilate_axis(core, nx, ny, nz, axis, rings)
+    band_t = np.zeros(n_t, dtype=np.bool_)
+    n_b = 0
+    in_band = np.zeros(n_v, dtype=np.bool_)
+    touches_out = np.zeros(n_v, dtype=np.bool_)
+    for t in range(n_t):
+        hit = False
+        for k in range(4):
+            if core[tets[t, k]]:
+                hit = True
+        band_t[t] = hit
+        if hit:
+            n_b += 1
+            for k in range(4):
+                in_band[tets[t, k]] = True
+        else:
+            for k in range(4):
+                touches_out[tets[t, k]] = True
+    tet_ids = np.empty(n_b, dtype=np.int64)
+    m = 0
+    for t in range(n_t):
+        if band_t[t]:
+            tet_ids[m] = t
+            m += 1
+    n_bv = 0
+    for v in range(n_v):
+        if in_band[v]:
+            n_bv += 1
+    vert_ids = np.empty(n_bv, dtype=np.int64)
+    boundary = np.empty(n_bv, dtype=np.bool_)
+    m = 0
+    for v in range(n_v):
+        if in_band[v]:
+            vert_ids[m] = v
+            boundary[m] = touches_out[v]
+            m += 1
+    return tet_ids, vert_ids, boundary, inside, in_band
+
+
+def build_band_reference(tets_tx4: torch.Tensor, s_v: torch.Tensor, lattice_shape: tuple[int, int, int],
+                         rings: int) -> Band:
+    """:func:`build_band` in torch tensor ops (the slow reference path; any device)."""
+    n_v = _check_band_args(s_v, lattice_shape, rings)
     with torch.no_grad():
         tets = tets_tx4.long()
         inside_v = s_v < 0
@@ -109,4 +210,4 @@ def build_band(tets_tx4: torch.Tensor, s_v: torch.Tensor, lattice_shape: tuple[i
                     inside_n=inside_v[vert_ids], in_band_v=in_band, inside_v=inside_v.clone(), rings=int(rings))
 
 
-__all__ = ["Band", "build_band"]
+__all__ = ["Band", "build_band", "build_band_reference"]
