@@ -310,7 +310,7 @@ class _Field:
     def _fit(self, target_cells: torch.Tensor, gen: torch.Generator) -> None:
         """Fit the MLP to the start SDF (cells) with zero deformation, ``mlp_fit_iters`` Adam steps on random
         batches of grid vertices."""
-        opt = torch.optim.Adam(self.params, lr=self.cfg.mlp_fit_lr, fused=True)
+        opt = torch.optim.Adam(self.params, lr=self.cfg.mlp_fit_lr)
         tgt = target_cells
         n = len(self.x_norm)
         bs = min(n, 8192)
@@ -636,9 +636,9 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     lr_scale = 1.0 if cfg.param == "vertex" else cfg.mlp_lr / cfg.lr
     if cfg.loss == "init" and cfg.start == "sphere":
         lr_scale *= cfg.init_lr_scale
-    # MLP: fused, one kernel per step instead of a dozen tensor ops per parameter (0.24 -> 0.07 ms a step); the
-    # per-vertex mode keeps the measured fast-mode results (benchmarks/results/recon_vs_carve.json) as they are
-    opt = torch.optim.Adam(fld.params, lr=cfg.lr * lr_scale, fused=cfg.param == "mlp")
+    # not fused: the fused Adam saved 0.17 ms a step but the run then rebuilt the band twice as often (syn12,
+    # 2500 steps: 276 vs 126 boundary rebuilds, 37.4 vs 31.5 ms/step)
+    opt = torch.optim.Adam(fld.params, lr=cfg.lr * lr_scale)
     masks_t = torch.from_numpy(np.ascontiguousarray(masks_vxhxw, dtype=np.float32))
     K_all = np.asarray(K_vx3x3, dtype=np.float64)
     T_all = np.asarray(T_cam_world_vx4x4, dtype=np.float64)
