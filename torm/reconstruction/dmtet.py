@@ -123,8 +123,9 @@ class DMTetConfig:
             ms/step), the idle OpenMP workers competing with the 1-thread loop.
         side_thread: MLP only: a second thread, itself on 1 torch thread, that computes eq. (4) and its gradient
             while the main thread renders the batch, and half of every gradient-free field evaluation (the band,
-            the full passes). Same values as without it: the work is split by rows or by independent terms and the
-            two parameter gradients are summed in a fixed order (tests/test_recon_paper_mode.py). "auto": on when
+            the full passes) and of the band's gradient pass. Same values as without it: the work is split by rows
+            or by independent terms and the parameter gradients are summed in a fixed order
+            (tests/test_recon_paper_mode.py). "auto": on when
             the loop runs on 1 torch thread and :func:`torm.runtime.default_threads` gives 2 or more; "on"/"off"
             force it. Measured on syn5, 5000 steps, 2-core AVX-512 machine: 98 s and 105 s with it (18.4 and 19.1
             ms/step; ``benchmarks/results/reconstruction_paper.json``), 135 s without (25.7 ms/step;
@@ -655,8 +656,10 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     fld.side = side
     eik_side = side if cfg.lambda_eikonal > 0 else None
     # with a side thread the main thread renders alone (measured faster than both threads rendering while the side
-    # thread runs eq. 4; letting the side thread take views once eq. 4 is done measured no gain, syn12); without
-    # one, the views render on the torch threads
+    # thread runs eq. 4). Measured without gain (syn12; eq. 4 takes 4.5-5.6 ms, the views' compiled work about
+    # 5 ms): the side thread taking views once eq. 4 is done, and the reverse (the side thread rasterises while
+    # the main thread computes eq. 4; 33.2 vs 33.4 ms/step, 3 interleaved pairs). Without a side thread the views
+    # render on the torch threads
     pool = None if side is not None else _render_pool(min(nb, torch.get_num_threads()))
     bar = _progress_bar(cfg.iterations)
     for it in bar:
