@@ -88,8 +88,8 @@ def build_band(tets_tx4: torch.Tensor, s_v: torch.Tensor, lattice_shape: tuple[i
     _check_band_args(s_v, lattice_shape, rings)
     tets = np.ascontiguousarray(tets_tx4.detach().cpu().numpy(), dtype=np.int64)
     s = np.ascontiguousarray(s_v.detach().cpu().numpy())
-    nx, ny, nz = (int(n) for n in lattice_shape)
-    tet_ids, vert_ids, boundary_n, inside_v, in_band = _build_band_kernel(tets, s, nx, ny, nz, int(rings))
+    ni, nj, nk = (int(n) for n in lattice_shape)  # vertices per axis
+    tet_ids, vert_ids, boundary_n, inside_v, in_band = _build_band_kernel(tets, s, ni, nj, nk, int(rings))
     dev = s_v.device
     tet_ids_t = torch.from_numpy(tet_ids).to(dev)
     vert_ids_t = torch.from_numpy(vert_ids).to(dev)
@@ -109,28 +109,30 @@ def _check_band_args(s_v: torch.Tensor, lattice_shape: tuple[int, int, int], rin
 
 
 @nb.njit(cache=True, nogil=True)
-def _dilate_axis(core, nx, ny, nz, axis, rings):  # pragma: no cover - compiled
-    """1-D max filter of half-width ``rings`` along one lattice axis (a cube's dilation is three of these)."""
+def _dilate_axis(core, ni, nj, nk, axis, rings):  # pragma: no cover - compiled
+    """1-D max filter of half-width ``rings`` along one lattice axis (a cube's dilation is three of these);
+    ``ni, nj, nk`` vertices per axis, vertex (i, j, k) at ``(i * nj + j) * nk + k``."""
     out = np.zeros_like(core)
-    for i in range(nx):
-        for j in range(ny):
-            for k in range(nz):
-                if not core[(i * ny + j) * nz + k]:
+    for i in range(ni):
+        for j in range(nj):
+            for k in range(nk):
+                if not core[(i * nj + j) * nk + k]:
                     continue
                 if axis == 0:
-                    for a in range(max(0, i - rings), min(nx, i + rings + 1)):
-                        out[(a * ny + j) * nz + k] = True
+                    for a in range(max(0, i - rings), min(ni, i + rings + 1)):
+                        out[(a * nj + j) * nk + k] = True
                 elif axis == 1:
-                    for a in range(max(0, j - rings), min(ny, j + rings + 1)):
-                        out[(i * ny + a) * nz + k] = True
+                    for a in range(max(0, j - rings), min(nj, j + rings + 1)):
+                        out[(i * nj + a) * nk + k] = True
                 else:
-                    for a in range(max(0, k - rings), min(nz, k + rings + 1)):
-                        out[(i * ny + j) * nz + a] = True
+                    for a in range(max(0, k - rings), min(nk, k + rings + 1)):
+                        out[(i * nj + j) * nk + a] = True
     return out
 
 
 @nb.njit(cache=True, nogil=True)
-def _build_band_kernel(tets, s, nx, ny, nz, rings):  # pragma: no cover - compiled
+def _build_band_kernel(tets, s, ni, nj, nk, rings):  # pragma: no cover - compiled
+    """The steps of :func:`build_band_reference` in loops: crossing tets -> core vertices -> dilation -> band."""
     n_v = s.shape[0]
     n_t = tets.shape[0]
     inside = s < 0
@@ -145,7 +147,7 @@ def _build_band_kernel(tets, s, nx, ny, nz, rings):  # pragma: no cover - compil
                 core[tets[t, k]] = True
     if rings > 0:
         for axis in range(3):
-            core = _dilate_axis(core, nx, ny, nz, axis, rings)
+            core = _dilate_axis(core, ni, nj, nk, axis, rings)
     band_t = np.zeros(n_t, dtype=np.bool_)
     n_b = 0
     in_band = np.zeros(n_v, dtype=np.bool_)
