@@ -127,9 +127,10 @@ class DMTetConfig:
             or by independent terms and the parameter gradients are summed in a fixed order
             (tests/test_recon_paper_mode.py). "auto": on when
             the loop runs on 1 torch thread and :func:`torm.runtime.default_threads` gives 2 or more; "on"/"off"
-            force it. Measured on syn5, 5000 steps, 2-core AVX-512 machine: 98 s and 105 s with it (18.4 and 19.1
-            ms/step; ``benchmarks/results/reconstruction_paper.json``), 135 s without (25.7 ms/step;
-            ``reconstruction_paper_noside.json``); the MLP's final field is bit-identical. Without it the views of a
+            force it. Measured on syn5, 5000 steps, 2-core AVX-512 machine: 93 s with it (17.3 ms/step;
+            ``benchmarks/results/reconstruction_paper.json``; 98-105 s before its share of the gradient pass and
+            the compiled band build), 135 s without (25.7 ms/step, ``reconstruction_paper_noside.json``, measured
+            before those two); the MLP's final field is bit-identical. Without it the views of a
             batch render on ``threads`` threads.
     """
 
