@@ -131,8 +131,8 @@ class DMTetConfig:
             ``benchmarks/results/reconstruction_paper.json``; 98-105 s before its share of the gradient pass and
             the compiled band build), 153 s without (28.9 ms/step, ``reconstruction_paper_noside.json``, same
             code; 135 s before the gradient pass was cut in halves, which on one thread cost more: field gradient
-            2.8 -> 4.0 ms/step); the final meshes are identical (Chamfer and volume IoU to every digit). Without it the views of a
-            batch render on ``threads`` threads.
+            2.8 -> 4.0 ms/step); the final meshes are identical (Chamfer and volume IoU to every digit). Without it
+            the views of a batch render on ``threads`` threads.
     """
 
     param: Literal["mlp", "vertex"] = "mlp"
