@@ -729,8 +729,9 @@ def _paper_md(doc: dict[str, Any]) -> tuple[str, dict[str, Any]]:
           "pass = MLP on every vertex (amortised); field grad = MLP with gradients on the vertices the loss "
           "reaches. Side thread (`DMTetConfig.side_thread`): a second thread computes eq. (4) and its gradient "
           "while the main thread renders (the eikonal column is then the main thread's wait for it) and half of "
-          "each gradient-free evaluation (field, full pass); same values as without it. Threads: torch threads of "
-          "the loop; fit threads: of the MLP's start fit. The paper: 5k steps in 177.3 s on a GPU. "
+          "each gradient-free evaluation (field, full pass) and of the field grad pass; same values as without "
+          "it. Threads: torch threads of the loop; fit threads: of the MLP's start fit. The paper: 5k steps in "
+          "177.3 s on a GPU. "
           "`reconstruct(mode=\"paper\")` runs the same and then "
           "raises when an object's silhouettes are not covered.\n\n"
           + bc.md_table(["scene", "steps", "collapsed at", "found/present", "IoU last 5", "IoU vs GT", "Chamfer mm",
