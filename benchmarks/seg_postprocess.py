@@ -1,15 +1,18 @@
 """Calibrate the learned segmenter's post-processing on its validation split; measure it once on the test splits.
 
-The network predicts two maps per view (object foreground, instance-boundary band);
-:func:`torm.segmentation.instances.extract_instances` turns them into instances with three settings:
-``fg_threshold``, ``boundary_threshold`` and ``min_core_px``. The shipped model used the untuned 0.5 / 0.5 / 8.
-This script:
+The network predicts two maps per view (object foreground, instance-boundary band), or five with the centre
+head (plus an instance-centre probability and each pixel's offset to its centre);
+:func:`torm.segmentation.instances.instances_from_maps` turns them into instances: ``grouping`` ``boundary``
+(``fg_threshold``, ``boundary_threshold``, ``min_core_px``), ``centre`` (``fg_threshold``, ``centre_threshold``,
+``nms_px``, ``max_vote_px``) or ``hybrid`` (the boundary instances split by centre votes: all of them). The first
+shipped model used the untuned 0.5 / 0.5 / 8 boundary grouping. This script:
 
 1. renders (or reuses) the ``val``, ``test_layouts`` and ``test_shapes`` splits of the model card's own data
    recipe (``runs/seg_data/<renderer>``, the folder ``benchmarks/segmentation.py --learned`` uses);
 2. runs the network once per view (optionally also on the horizontally flipped view, averaging the two
-   probability maps: test-time augmentation ``flip_tta``);
-3. grid-searches the settings on ``val`` only (random layouts of the training distribution, 320x192 windows;
+   maps: test-time augmentation ``flip_tta``);
+3. grid-searches the settings (:func:`grid`; for a centre-head model all three groupings) on ``val`` only
+   (random layouts of the training distribution, 320x192 windows;
    the training run used it only to pick its checkpoint) by mean object IoU (best-match IoU per (view, GT
    object), :func:`torm.segmentation.training.evaluate.evaluate`);
 4. reports the default and the chosen setting on both test splits, which take no part in any choice.
@@ -42,7 +45,37 @@ log = logging.getLogger("bench.seg_postprocess")
 FG = (0.3, 0.4, 0.5, 0.6, 0.7)
 BD = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
 CORE = (4, 8, 16, 32)
-DEFAULT = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8, "flip_tta": False}
+CENTRE_FG = (0.3, 0.4, 0.5, 0.6)
+CENTRE_THR = (0.1, 0.2, 0.3, 0.5)
+NMS = (3, 6)
+VOTE = (10.0, 20.0, 40.0)
+#: every setting key, with the untuned defaults (LearnedSegmenter's POSTPROCESS_DEFAULTS for a 2-map model)
+DEFAULT = {"grouping": "boundary", "fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
+           "flip_tta": False, "centre_threshold": 0.3, "nms_px": 5, "max_vote_px": 20.0}
+#: the untuned default of a centre-head model
+DEFAULT_CENTRE = {**DEFAULT, "grouping": "centre"}
+
+
+def grid(channels: int, quick: bool = False) -> list[dict[str, Any]]:
+    """The settings searched on val: the boundary grid (FG x BD x CORE x flip; for a centre-head model a
+    16-setting subset), and for a centre-head model the centre grid (CENTRE_FG x CENTRE_THR x NMS x VOTE x flip)
+    and a 16-setting hybrid grid."""
+    def mk(**kw: Any) -> dict[str, Any]:
+        return {**DEFAULT, **kw}
+
+    flips = (False, True)
+    if channels == 2:
+        fg, bd, core = (FG[1:3], BD[2:4], CORE[:2]) if quick else (FG, BD, CORE)
+        return [mk(fg_threshold=f, boundary_threshold=b, min_core_px=c, flip_tta=t)
+                for f, b, c, t in itertools.product(fg, bd, core, flips)]
+    out = [mk(fg_threshold=f, boundary_threshold=b, min_core_px=c, flip_tta=t)
+           for f, b, c, t in itertools.product((0.4, 0.5), (0.3, 0.5), (8, 32), flips)]
+    cfg, cthr, nms, vote = ((0.5,), (0.3,), (5,), (20.0,)) if quick else (CENTRE_FG, CENTRE_THR, NMS, VOTE)
+    out += [mk(grouping="centre", fg_threshold=f, centre_threshold=c, nms_px=n, max_vote_px=v, flip_tta=t)
+            for f, c, n, v, t in itertools.product(cfg, cthr, nms, vote, flips)]
+    out += [mk(grouping="hybrid", fg_threshold=f, boundary_threshold=b, min_core_px=c, centre_threshold=ct,
+               flip_tta=True) for f, b, c, ct in itertools.product((0.4, 0.5), (0.3, 0.5), (8, 32), (0.2, 0.3))]
+    return out[:4] + out[16:18] + out[-2:] if quick else out
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -82,23 +115,24 @@ def card_splits(a: argparse.Namespace, seg: Any, splits: tuple[str, ...]) -> tup
     return recipe, {s: load_split(data_dir, s) for s in splits}
 
 
-def probabilities(seg: Any, rgb_nxhxwx3: np.ndarray) -> dict[bool, list[tuple[np.ndarray, np.ndarray]]]:
-    """{flip_tta: [(fg, boundary) per view]}: plain, and averaged with the horizontally flipped view."""
-    return {f: [seg.probabilities(im, flip_tta=f) for im in rgb_nxhxwx3] for f in (False, True)}
+def probabilities(seg: Any, rgb_nxhxwx3: np.ndarray) -> dict[bool, list[np.ndarray]]:
+    """{flip_tta: [(C, H, W) maps per view]}: plain, and averaged with the horizontally flipped view."""
+    return {f: [seg.maps(im, flip_tta=f) for im in rgb_nxhxwx3] for f in (False, True)}
 
 
-def score(probs: list[tuple[np.ndarray, np.ndarray]], data: dict[str, Any], setting: dict[str, Any],
+def score(maps: list[np.ndarray], data: dict[str, Any], setting: dict[str, Any],
           held_out: tuple[str, ...]) -> dict[str, Any]:
-    """:func:`evaluate` of the instances that ``setting`` extracts from cached probabilities."""
-    from torm.segmentation.instances import extract_instances
+    """:func:`evaluate` of the instances that ``setting`` extracts from cached maps."""
+    from torm.segmentation.instances import instances_from_maps
     from torm.segmentation.training.evaluate import evaluate
 
-    it = iter(probs)
+    it = iter(maps)
+    st = setting
 
     def segment(_im: np.ndarray) -> np.ndarray:
-        fg, bd = next(it)
-        return extract_instances(fg, bd, setting["fg_threshold"], setting["boundary_threshold"],
-                                 setting["min_core_px"], 30)[0]
+        m = next(it)
+        return instances_from_maps(m, st["grouping"], st["fg_threshold"], st["boundary_threshold"],
+                                   st["min_core_px"], 30, st["centre_threshold"], st["nms_px"], st["max_vote_px"])[0]
 
     return evaluate(segment, data, held_out)
 
@@ -125,25 +159,27 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     probs = {s: probabilities(seg, data[s]["rgb"]) for s in splits}
     net_s = time.perf_counter() - t0
-    grid = [dict(zip(("fg_threshold", "boundary_threshold", "min_core_px", "flip_tta"), v, strict=True))
-            for v in itertools.product(FG[1:3] if a.quick else FG, BD[2:4] if a.quick else BD,
-                                       CORE[:2] if a.quick else CORE, (False, True))]
+    settings = grid(seg.channels, a.quick)
+    default = DEFAULT_CENTRE if seg.channels == 5 else DEFAULT
+    if default not in settings:
+        settings.insert(0, dict(default))
     val_rows = []
-    for st in tqdm(grid, desc="val grid", unit="setting"):
+    for st in tqdm(settings, desc="val grid", unit="setting"):
         val_rows.append(_row("val", st, score(probs["val"][st["flip_tta"]], data["val"], st, held)))
     best = max(val_rows, key=lambda r: r["object_iou"])
     chosen = {k: best[k] for k in DEFAULT}
-    default_val = next(r for r in val_rows if all(r[k] == v for k, v in DEFAULT.items()))
+    default_val = next(r for r in val_rows if all(r[k] == v for k, v in default.items()))
     test_rows = []
     for s in ("test_layouts", "test_shapes"):
-        for name, st in (("default", DEFAULT), ("chosen on val", chosen)):
+        for name, st in (("default", default), ("chosen on val", chosen)):
             r = _row(s, st, score(probs[s][st["flip_tta"]], data[s], st, held))
             r["setting"] = name
             test_rows.append(r)
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc = {"context": bc.context(args), "model": seg.config.model_path.name, "renderer": recipe.renderer,
            "recipe": recipe.to_dict(), "views": {s: int(len(data[s]["rgb"])) for s in splits},
-           "network_seconds": net_s, "default": DEFAULT, "chosen": chosen, "val_default": default_val,
+           "channels": seg.channels, "network_seconds": net_s, "default": default, "chosen": chosen,
+           "val_default": default_val,
            "val_best": best, "val_grid": val_rows, "test": test_rows}
     a.out.mkdir(parents=True, exist_ok=True)
     bc.write_json(a.out / "seg_postprocess.json", json.loads(json.dumps(doc, default=str)))
@@ -169,14 +205,21 @@ def card_entry(doc: dict[str, Any]) -> dict[str, Any]:
 
 def report(doc: dict[str, Any]) -> str:
     ctx = doc["context"]
-    head = ["split", "setting", "fg thr", "boundary thr", "min core px", "flip TTA", "silhouette IoU", "object IoU",
-            "held-out shapes IoU", "miss rate", "false pos / view"]
-    rows = [[r["split"], r["setting"], r["fg_threshold"], r["boundary_threshold"], r["min_core_px"], r["flip_tta"],
-             r["silhouette_iou"], r["object_iou"], r["held_out_iou"], r["miss_rate"], r["false_pos_per_view"]]
-            for r in doc["test"]]
+    keys = ["grouping", "fg_threshold", "boundary_threshold", "min_core_px", "centre_threshold", "nms_px",
+            "max_vote_px", "flip_tta"]
+    names = ["grouping", "fg thr", "boundary thr", "min core px", "centre thr", "NMS px", "max vote px", "flip TTA"]
+    head = ["split", "setting", *names, "silhouette IoU", "object IoU", "held-out shapes IoU", "miss rate",
+            "false pos / view"]
+    rows = [[r["split"], r["setting"], *[r.get(k) for k in keys], r["silhouette_iou"], r["object_iou"],
+             r["held_out_iou"], r["miss_rate"], r["false_pos_per_view"]] for r in doc["test"]]
     top = sorted(doc["val_grid"], key=lambda r: -r["object_iou"])[:10]
-    vrows = [[r["fg_threshold"], r["boundary_threshold"], r["min_core_px"], r["flip_tta"], r["silhouette_iou"],
-              r["object_iou"], r["miss_rate"], r["false_pos_per_view"]] for r in [doc["val_default"], *top]]
+    best_by = {}
+    for r in doc["val_grid"]:
+        g = r.get("grouping", "boundary")
+        if g not in best_by or r["object_iou"] > best_by[g]["object_iou"]:
+            best_by[g] = r
+    vrows = [[*[r.get(k) for k in keys], r["silhouette_iou"], r["object_iou"], r["miss_rate"],
+              r["false_pos_per_view"]] for r in [doc["val_default"], *top, *best_by.values()]]
     types = sorted({t for r in doc["test"] for t in r["per_type"]})
     trows = [[t, *[r["per_type"].get(t) for r in doc["test"]]] for t in types]
     return (
@@ -185,13 +228,14 @@ def report(doc: dict[str, Any]) -> str:
         f"recipe (renderer `{doc['renderer']}`); views: {doc['views']}. The settings are chosen on `val` only "
         "(best mean object IoU); `test_layouts` / `test_shapes` are measured once with the default and once with "
         "the chosen setting. Object IoU: best-match IoU per (view, GT object with >= 100 visible px); a miss is "
-        "IoU < 0.5. Flip TTA: the probabilities averaged with those of the horizontally flipped view (2 network "
-        "runs per view).\n\n**Run context**\n\n" + bc.context_md(ctx) + "\n## Test splits\n\n"
+        "IoU < 0.5. Flip TTA: the maps averaged with those of the horizontally flipped view (2 network "
+        f"runs per view). The model has {doc.get('channels', 2)} output maps"
+        + (" (centre head: groupings `boundary`, `centre`, `hybrid` searched)" if doc.get("channels") == 5 else "")
+        + ".\n\n**Run context**\n\n" + bc.context_md(ctx) + "\n## Test splits\n\n"
         + bc.md_table(head, rows, 3) + "\n## Per object type (object IoU; columns in the order of the rows above)\n\n"
         + bc.md_table(["type", *[f"{r['split']} {r['setting']}" for r in doc["test"]]], trows, 3)
-        + "\n## Validation grid: the default, then the 10 best\n\n"
-        + bc.md_table(["fg thr", "boundary thr", "min core px", "flip TTA", "silhouette IoU", "object IoU",
-                       "miss rate", "false pos / view"], vrows, 3))
+        + "\n## Validation grid: the default, the 10 best, then the best of each grouping\n\n"
+        + bc.md_table([*names, "silhouette IoU", "object IoU", "miss rate", "false pos / view"], vrows, 3))
 
 
 if __name__ == "__main__":

@@ -1,15 +1,19 @@
 """The learned segmenter: a small U-Net trained here on rendered scenes, run with onnxruntime.
 
 It reads pixels only (no ground truth, no depth): per view, the network predicts an object-foreground
-probability and an instance-boundary probability; :func:`torm.segmentation.instances.extract_instances`
-turns them into instances (connected cores grown back into the foreground). Ids are per view, 1..N by
+probability and an instance-boundary probability, and (models with the centre head) an instance-centre
+probability and each pixel's offset to its instance's centre;
+:func:`torm.segmentation.instances.instances_from_maps` turns them into instances (``grouping``: connected cores
+grown back into the foreground, or pixels grouped by the centre their offsets vote for). Ids are per view, 1..N by
 descending area, and do **not** correspond across views (like Grounded-SAM); the reconstruction uses the
 union ``mask > 0``.
 
 Model file signature (``model``; default the shipped ``models/learned_seg.onnx``):
     input  ``image`` (1, 3, H, W) float32, RGB in [0, 255] (normalisation is inside the graph), H and W
            multiples of 16 (torm pads bottom/right by edge replication);
-    output ``logits`` (1, 2, H, W) float32: channel 0 foreground, channel 1 boundary band (sigmoid -> prob).
+    output ``logits`` (1, C, H, W) float32, C = 2 or 5: channel 0 foreground, 1 boundary band, 2 instance
+           centre (sigmoid -> prob), 3-4 offset (dy, dx) to the instance's centre in units of
+           ``OFFSET_SCALE`` px of the network input.
 
 Each view is resized to ``input_width`` px wide (aspect kept; the shipped model was trained on the
 pipeline's 640x360 frames of the 91.5 deg camera, so objects should have about that pixel size),
@@ -29,9 +33,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from torm.errors import CaptureError, ConfigError
+from torm.errors import CaptureError, ConfigError, ModelFileError
 from torm.segmentation.base import Detection, SegmentationResult, Segmenter
-from torm.segmentation.instances import extract_instances
+from torm.segmentation.instances import instances_from_maps
 from torm.segmentation.onnx_models import TensorSpec, open_session
 from torm.segmentation.quality import mask_quality
 from torm.types import Capture
@@ -41,11 +45,18 @@ log = logging.getLogger(__name__)
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "learned_seg.onnx"
 INPUTS = (TensorSpec("image", ("image",), (1, 3, None, None)),)
-OUTPUTS = (TensorSpec("logits", ("logits",), (1, 2, None, None)),)
+OUTPUTS = (TensorSpec("logits", ("logits",), (1, None, None, None)),)
+#: output channel counts a model file may have (without / with the centre head)
+CHANNELS = (2, 5)
 STRIDE = 16
-#: post-processing used when neither the config nor the model card sets it (the first model's untuned values)
+#: offsets are stored in units of this many px (must equal ``training.model.OFFSET_SCALE``; kept here so that
+#: inference does not import torch)
+OFFSET_SCALE = 10.0
+#: post-processing used when neither the config nor the model card sets it (the first model's untuned values;
+#: ``grouping`` None = ``centre`` for a centre-head model, else ``boundary``)
 POSTPROCESS_DEFAULTS: dict[str, Any] = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
-                                        "flip_tta": False}
+                                        "flip_tta": False, "grouping": None, "centre_threshold": 0.3, "nms_px": 5,
+                                        "max_vote_px": 20.0}
 
 
 @dataclass(frozen=True)
@@ -57,7 +68,10 @@ class LearnedConfig:
     ``fg_threshold``, ``boundary_threshold``, ``min_core_px`` and ``flip_tta`` left unset (None) come from the
     model card's ``postprocess`` entry (calibrated on the model's validation split by
     ``benchmarks/seg_postprocess.py``), else 0.5, 0.5, 8 px and False. ``flip_tta``: average the probabilities
-    with those of the horizontally flipped view (two network runs per view). ``core_split_px`` (network input
+    with those of the horizontally flipped view (two network runs per view). ``grouping`` (``boundary``,
+    ``centre``, ``hybrid``; centre-head models only for the last two), ``centre_threshold``, ``nms_px`` and
+    ``max_vote_px`` (network input px) likewise come from the card when unset
+    (:func:`torm.segmentation.instances.instances_from_maps`). ``core_split_px`` (network input
     pixels, 0 = off): split an instance core at a neck this deep
     (:func:`torm.segmentation.instances.split_cores_at_necks`); off: at 4 px (chosen on val) it gained 0.003 object
     IoU on unseen layouts and 0.015 on held-out shapes for 0.3-0.5 more false positives per view
@@ -70,13 +84,23 @@ class LearnedConfig:
     boundary_threshold: float | None = None
     min_core_px: int | None = None
     flip_tta: bool | None = None
+    grouping: str | None = None
+    centre_threshold: float | None = None
+    nms_px: int | None = None
+    max_vote_px: float | None = None
     min_area_px: int = 30
     core_split_px: float = 0.0
     providers: tuple[str, ...] = ()
     threads: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("fg_threshold", "boundary_threshold"):
+        from torm.segmentation.instances import GROUPINGS
+
+        if self.grouping is not None and self.grouping not in GROUPINGS:
+            raise ConfigError(f"learned.grouping {self.grouping!r}; valid choices: {', '.join(GROUPINGS)}")
+        if (self.nms_px is not None and self.nms_px < 0) or (self.max_vote_px is not None and self.max_vote_px <= 0):
+            raise ConfigError("learned: need nms_px >= 0 and max_vote_px > 0")
+        for name in ("fg_threshold", "boundary_threshold", "centre_threshold"):
             v = getattr(self, name)
             if v is not None and not 0.0 < v < 1.0:
                 raise ConfigError(f"learned.{name} = {v} must be in (0, 1)")
@@ -105,28 +129,49 @@ class LearnedSegmenter(Segmenter):
         self.config = c = config or LearnedConfig()
         self.session = open_session(c.model_path, "learned.model", INPUTS, OUTPUTS, list(c.providers) or None,
                                     c.threads)
+        ch = self.session.session.get_outputs()[0].shape[1]
+        if ch not in CHANNELS:
+            raise ModelFileError(f"{c.model_path}: output 'logits' has {ch} channels; the learned segmenter's "
+                                 f"signature is (1, 2, H, W) or, with the centre head, (1, 5, H, W)")
+        #: number of output maps (2, or 5 with the centre head)
+        self.channels = int(ch)
         card = c.model_path.with_suffix(".json")
         self.card: dict[str, Any] = json.loads(card.read_text()) if card.is_file() else {}
         post = self.card.get("postprocess", {})
         #: the post-processing in use: the config's values, else the card's calibration, else the defaults
         self.postprocess: dict[str, Any] = {k: getattr(c, k) if getattr(c, k) is not None else post.get(k, d)
                                             for k, d in POSTPROCESS_DEFAULTS.items()}
+        if self.postprocess["grouping"] is None:
+            self.postprocess["grouping"] = "centre" if self.channels == 5 else "boundary"
+        if self.postprocess["grouping"] != "boundary" and self.channels != 5:
+            raise ConfigError(f"learned.grouping {self.postprocess['grouping']!r} needs a model with the centre head "
+                              f"(5 output channels); {c.model_path} has {self.channels}: use grouping 'boundary'")
 
     def probabilities(self, rgb: np.ndarray, flip_tta: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(H, W) foreground and boundary probabilities of one (H, W, 3) uint8 RGB image, at its own size.
 
         ``flip_tta`` (None = :attr:`postprocess`): the mean of the view's and its mirror image's probabilities.
         """
+        m = self.maps(rgb, flip_tta)
+        return m[0], m[1]
+
+    def maps(self, rgb: np.ndarray, flip_tta: bool | None = None) -> np.ndarray:
+        """(C, H, W) float32 maps of one (H, W, 3) uint8 RGB image at its own size: foreground and boundary
+        probabilities, and for a centre-head model the centre probability and the offsets (dy, dx) to the
+        instance's centre in px of the image. ``flip_tta`` (None = :attr:`postprocess`): the mean of the view's and
+        its mirror image's maps (the mirror's dx negated)."""
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise CaptureError(f"the learned segmenter needs (H, W, 3) uint8 RGB images, got {rgb.shape} {rgb.dtype}")
+        m = self._maps(rgb)
         if flip_tta if flip_tta is not None else self.postprocess["flip_tta"]:
-            fg, bd = self._probabilities(rgb)
-            ffg, fbd = self._probabilities(np.ascontiguousarray(rgb[:, ::-1]))
-            return (fg + ffg[:, ::-1]) / 2, (bd + fbd[:, ::-1]) / 2
-        return self._probabilities(rgb)
+            f = self._maps(np.ascontiguousarray(rgb[:, ::-1]))[:, :, ::-1]
+            if len(f) == 5:
+                f[4] = -f[4]
+            m = (m + f) / 2
+        return m
 
-    def _probabilities(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _maps(self, rgb: np.ndarray) -> np.ndarray:
         h, w = rgb.shape[:2]
         tw = self.config.input_width or w
         th = max(int(round(h * tw / w)), 1)
@@ -135,20 +180,25 @@ class LearnedSegmenter(Segmenter):
         if ph or pw:
             x = cv2.copyMakeBorder(x, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
         inp = x.astype(np.float32).transpose(2, 0, 1)[None]
-        logits = self.session.run({"image": inp}, ("logits",))[0][0, :, :th, :tw]
-        prob = _sigmoid(logits.astype(np.float32))
+        logits = self.session.run({"image": inp}, ("logits",))[0][0, :, :th, :tw].astype(np.float32)
+        out = _sigmoid(logits)
+        if len(out) == 5:  # offsets in px of the image
+            out[3] = logits[3] * OFFSET_SCALE * (h / th)
+            out[4] = logits[4] * OFFSET_SCALE * (w / tw)
         if (th, tw) != (h, w):
-            prob = np.stack([cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in prob])
-        return prob[0], prob[1]
+            out = np.stack([cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in out])
+        return out
 
     def segment_image(self, rgb: np.ndarray) -> tuple[np.ndarray, tuple[Detection, ...]]:
         """(H, W) int32 instance mask and one detection (box, mean foreground probability) per instance."""
         c, pp = self.config, self.postprocess
-        fg, bd = self.probabilities(rgb)
-        scale = (rgb.shape[1] / (c.input_width or rgb.shape[1])) ** 2
-        mask, scores = extract_instances(fg, bd, pp["fg_threshold"], pp["boundary_threshold"],
-                                         max(int(round(pp["min_core_px"] * scale)), 1),
-                                         int(round(c.min_area_px * scale)), c.core_split_px * scale ** 0.5)
+        maps = self.maps(rgb)
+        lin = rgb.shape[1] / (c.input_width or rgb.shape[1])  # image px per network input px
+        mask, scores = instances_from_maps(
+            maps, pp["grouping"], pp["fg_threshold"], pp["boundary_threshold"],
+            max(int(round(pp["min_core_px"] * lin ** 2)), 1), int(round(c.min_area_px * lin ** 2)),
+            pp["centre_threshold"], max(int(round(pp["nms_px"] * lin)), 0), pp["max_vote_px"] * lin,
+            c.core_split_px * lin)
         dets = []
         for i, s in enumerate(scores, start=1):
             ys, xs = np.nonzero(mask == i)

@@ -1,4 +1,5 @@
-"""A small U-Net (torch): RGB in, two logit maps out (object foreground, instance boundary band).
+"""A small U-Net (torch): RGB in, per-pixel maps out: object foreground and instance boundary band (logits),
+optionally an instance-centre heatmap (logit) and the offset to the instance's centre (2 channels, px / OFFSET_SCALE).
 
 Encoder: ``len(channels)`` stages of two 3x3 conv + BatchNorm + ReLU, max-pool 2 between stages; decoder:
 bilinear x2 upsampling, concatenation with the encoder stage of the same size, two 3x3 convs. Input height
@@ -8,6 +9,9 @@ and width must be multiples of ``2 ** (len(channels) - 1)`` (16 for the default)
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import nn
@@ -16,6 +20,10 @@ from torch import nn
 RGB_MEAN = (0.485, 0.456, 0.406)
 RGB_STD = (0.229, 0.224, 0.225)
 OUTPUTS = ("foreground", "boundary")
+#: the outputs with the centre head (Panoptic-DeepLab-style grouping): channels 2-4
+OUTPUTS_CENTRE = (*OUTPUTS, "centre", "offset_y", "offset_x")
+#: offsets are predicted in units of this many pixels (of the network input): y_px = OFFSET_SCALE * output
+OFFSET_SCALE = 10.0
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -26,11 +34,16 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 
 
 class SegUNet(nn.Module):
-    """U-Net with ``channels`` per stage; forward (B, 3, H, W) normalised RGB -> (B, 2, H, W) logits."""
+    """U-Net with ``channels`` per stage; forward (B, 3, H, W) normalised RGB -> (B, C, H, W) maps.
 
-    def __init__(self, channels: tuple[int, ...] = (12, 24, 32, 48, 64)) -> None:
+    ``centre_head`` False: C = 2 (:data:`OUTPUTS`); True: C = 5 (:data:`OUTPUTS_CENTRE`). The heads are one 1x1
+    convolution on the last decoder stage.
+    """
+
+    def __init__(self, channels: tuple[int, ...] = (12, 24, 32, 48, 64), centre_head: bool = False) -> None:
         super().__init__()
         self.channels = tuple(channels)
+        self.centre_head = bool(centre_head)
         self.down = nn.ModuleList()
         cin = 3
         for c in channels:
@@ -40,7 +53,7 @@ class SegUNet(nn.Module):
         for c_skip in reversed(channels[:-1]):
             self.up.append(_block(cin + c_skip, c_skip))
             cin = c_skip
-        self.head = nn.Conv2d(cin, len(OUTPUTS), 1)
+        self.head = nn.Conv2d(cin, len(OUTPUTS_CENTRE if centre_head else OUTPUTS), 1)
 
     @property
     def stride(self) -> int:
@@ -71,7 +84,7 @@ def normalise(rgb255_bx3xhxw: torch.Tensor) -> torch.Tensor:
 
 
 class ExportWrapper(nn.Module):
-    """What the ONNX file holds: ``image`` (1, 3, H, W) RGB in [0, 255] -> ``logits`` (1, 2, H, W)."""
+    """What the ONNX file holds: ``image`` (1, 3, H, W) RGB in [0, 255] -> ``logits`` (1, C, H, W), C = 2 or 5."""
 
     def __init__(self, net: SegUNet) -> None:
         super().__init__()
@@ -81,3 +94,46 @@ class ExportWrapper(nn.Module):
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         return self.net((image - self.mean) / self.std)
+
+
+def load_onnx_weights(net: SegUNet, path: str | Path) -> SegUNet:
+    """Load an exported model's weights into ``net`` (same ``channels``); returns ``net``.
+
+    The exporter folds each BatchNorm into its convolution, so the file holds one (weight, bias) per 3x3
+    convolution in module order plus the head. They go into ``net``'s convolutions, and every BatchNorm becomes
+    the identity plus the folded bias (mean 0, variance 1 - eps, scale 1): ``net`` in eval mode computes what the
+    file computes. Fine-tune such a network with its BatchNorms kept in eval mode (``TrainConfig.freeze_bn``).
+    A file with a 2-channel head loaded into a centre-head network fills the first two head channels; the
+    centre channels keep their initialisation.
+    """
+    import onnx
+    from onnx import numpy_helper
+
+    from torm.errors import ModelFileError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f"{path} does not exist; point train.init_from at an exported learned_seg .onnx file")
+    inits = {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer}
+    convs = [m for m in net.modules() if isinstance(m, nn.Conv2d) and m is not net.head]
+    bns = [m for m in net.modules() if isinstance(m, nn.BatchNorm2d)]
+    folded = [(k, v) for k, v in inits.items() if v.ndim == 4 and k not in ("mean", "std") and not k.startswith(
+        "net.head")]
+    if len(folded) != len(convs) or any(tuple(v.shape) != tuple(c.weight.shape) for (_, v), c in zip(
+            folded, convs, strict=False)):
+        raise ModelFileError(f"{path}: its convolutions {[tuple(v.shape) for _, v in folded]} do not match a "
+                             f"SegUNet with channels {net.channels}; train.channels must be the file's")
+    names = list(inits)
+    with torch.no_grad():
+        for (k, w), conv, bn in zip(folded, convs, bns, strict=True):
+            b = inits[names[names.index(k) + 1]]
+            conv.weight.copy_(torch.from_numpy(np.array(w)))
+            bn.running_mean.zero_()
+            bn.running_var.fill_(1.0 - bn.eps)
+            bn.weight.fill_(1.0)
+            bn.bias.copy_(torch.from_numpy(np.array(b)))
+        hw, hb = inits["net.head.weight"], inits["net.head.bias"]
+        c = min(len(hw), net.head.out_channels)
+        net.head.weight[:c].copy_(torch.from_numpy(np.array(hw[:c])))
+        net.head.bias[:c].copy_(torch.from_numpy(np.array(hb[:c])))
+    return net

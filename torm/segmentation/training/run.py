@@ -81,8 +81,9 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
     export_onnx(net, out_path)
     card: dict[str, Any] = {
         "model": out_path.name,
-        "signature": "image (1, 3, H, W) float32 RGB 0..255, H, W multiples of 16 -> logits (1, 2, H, W): "
-                     "foreground, boundary band",
+        "signature": "image (1, 3, H, W) float32 RGB 0..255, H, W multiples of 16 -> logits (1, "
+                     + ("5, H, W): foreground, boundary band, centre, offset dy, dx (x OFFSET_SCALE px)"
+                        if spec.train.centre_head else "2, H, W): foreground, boundary band"),
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "train": spec.train.to_dict(), "data": spec.data.to_dict(),
         "held_out_shapes": list(HELD_OUT_SHAPES),
@@ -95,10 +96,11 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
         "produced_by": "torm train-segmenter",
         "command": " ".join(sys.argv),
     }
-    if spec.train.init_from:  # fine-tuned: record the run it started from (its card sits beside its best.pt)
-        import json
+    if spec.train.init_from:  # fine-tuned: record the run it started from (its card: beside an .onnx of the same
+        import json  # name, or learned_seg.json beside a best.pt)
 
-        pre = Path(spec.train.init_from).expanduser().parent / "learned_seg.json"
+        init = Path(spec.train.init_from).expanduser()
+        pre = init.with_suffix(".json") if init.suffix == ".onnx" else init.parent / "learned_seg.json"
         pre_card = json.loads(pre.read_text()) if pre.is_file() else {}
         card["pretrained"] = {"init_from": spec.train.init_from, **{k: pre_card.get(k) for k in (
             "train", "data", "dataset", "training", "held_out_metrics")}}

@@ -1,13 +1,18 @@
 """Training the learned segmenter on rendered shards: resumable, checkpointed, CPU; export to ONNX.
 
-Loss: foreground BCE + soft Dice, boundary-band BCE (positive weight ``boundary_pos_weight``). Augmentation
+Loss: foreground BCE + soft Dice, boundary-band BCE (positive weight ``boundary_pos_weight``); with
+``centre_head``, also the centre heatmap's mean squared error (sigmoid output vs Gaussians of ``centre_sigma_px``
+around each instance's mean pixel, weight ``centre_loss_weight``) and the L1 error of the predicted offset to the
+centre on object pixels (in units of ``OFFSET_SCALE`` px, weight ``offset_loss_weight``). Augmentation
 per sample (seeded ``numpy.random.Generator``): horizontal flip, random ``crop`` window, brightness x
 U(0.7, 1.3), contrast x U(0.7, 1.3), per-channel gain x U(0.9, 1.1), Gaussian noise sigma U(0, 6) grey levels.
 AdamW with a cosine learning-rate schedule over ``steps``; ``init_from`` starts from an earlier run's weights
-(fine-tuning, e.g. MuJoCo-pretrained weights on PBR renders). A checkpoint (model, optimiser, step, RNG state)
-is written every ``checkpoint_every`` steps and at the end; a restarted run continues from it. The
-checkpoint with the best validation foreground IoU (split ``val``: seen shapes, unseen layouts; never the
-test splits) is the one exported.
+(fine-tuning, e.g. MuJoCo-pretrained weights on PBR renders), from a ``best.pt`` or an exported ``.onnx`` file
+(BatchNorms folded: train it with ``freeze_bn``, every BatchNorm in eval mode). A checkpoint (model, optimiser,
+step, RNG state) is written every ``checkpoint_every`` steps and at the end; a restarted run continues from it. The
+checkpoint with the best validation score (``select_on``: foreground IoU, or object IoU after instance
+extraction with the default post-processing; split ``val``: seen shapes, unseen layouts; never the test
+splits) is the one exported.
 """
 
 from __future__ import annotations
@@ -27,10 +32,14 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 
 from torm.errors import ConfigError
-from torm.segmentation.training.model import ExportWrapper, SegUNet, normalise
-from torm.segmentation.training.targets import targets
+from torm.segmentation.training.model import OFFSET_SCALE, ExportWrapper, SegUNet, load_onnx_weights, normalise
+from torm.segmentation.training.targets import centre_targets, targets
 
 log = logging.getLogger(__name__)
+
+
+#: validation scores a run can select its exported checkpoint on
+SELECT_ON = ("fg_iou", "object_iou")
 
 
 @dataclass(frozen=True)
@@ -50,7 +59,13 @@ class TrainConfig:
     val_every: int = 100
     threads: int = 1
     seed: int = 0
-    init_from: str = ""  # a best.pt / checkpoint.pt of the same channels to start from (fine-tuning); "" = random
+    init_from: str = ""  # a best.pt / checkpoint.pt / exported .onnx of the same channels (fine-tuning); "" = random
+    centre_head: bool = False  # also predict instance centres and offsets (5 output channels)
+    centre_sigma_px: float = 4.0
+    centre_loss_weight: float = 100.0
+    offset_loss_weight: float = 1.0
+    freeze_bn: bool = False  # BatchNorms in eval mode while training (needed after an .onnx init_from)
+    select_on: str = "fg_iou"  # the validation score that picks the exported checkpoint: fg_iou | object_iou
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
@@ -60,17 +75,26 @@ class TrainConfig:
             raise ConfigError(f"train.crop {self.crop} must be (H, W) multiples of {stride}")
         if not self.lr > 0 or self.threads < 1:
             raise ConfigError("train: need lr > 0 and threads >= 1")
+        if self.select_on not in SELECT_ON:
+            raise ConfigError(f"train.select_on {self.select_on!r}; valid choices: {', '.join(SELECT_ON)}")
+        if self.centre_sigma_px <= 0 or self.centre_loss_weight < 0 or self.offset_loss_weight < 0:
+            raise ConfigError("train: need centre_sigma_px > 0 and centre/offset loss weights >= 0")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
 
 class Batcher:
-    """Random augmented batches (B, 3, h, w) float RGB 0..255 and (B, 2, h, w) float targets."""
+    """Random augmented batches (B, 3, h, w) float RGB 0..255 and (B, C, h, w) float targets.
+
+    C = 2 (foreground, boundary) or, with ``centre_nx3xhxw`` (heatmap, offset y, offset x in px), 5; a
+    horizontal flip negates the x offset.
+    """
 
     def __init__(self, rgb_nxhxwx3: np.ndarray, tgt_nx2xhxw: np.ndarray, cfg: TrainConfig,
-                 rng: np.random.Generator) -> None:
+                 rng: np.random.Generator, centre_nx3xhxw: np.ndarray | None = None) -> None:
         self.rgb, self.tgt, self.cfg, self.rng = rgb_nxhxwx3, tgt_nx2xhxw, cfg, rng
+        self.centre = centre_nx3xhxw
 
     def sample(self) -> tuple[torch.Tensor, torch.Tensor]:
         c, r = self.cfg, self.rng
@@ -81,8 +105,12 @@ class Batcher:
             y0, x0 = int(r.integers(0, H - ch + 1)), int(r.integers(0, W - cw + 1))
             img = self.rgb[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
             t = self.tgt[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
+            if self.centre is not None:
+                t = np.concatenate([t, self.centre[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)])
             if r.random() < 0.5:
-                img, t = img[:, ::-1], t[:, :, ::-1]
+                img, t = img[:, ::-1], t[:, :, ::-1].copy()
+                if len(t) > 2:
+                    t[4] = -t[4]
             m = img.mean()
             img = (img - m) * r.uniform(0.7, 1.3) + m * r.uniform(0.7, 1.3)
             img = img * r.uniform(0.9, 1.1, 3) + r.normal(0, r.uniform(0, 6), img.shape)
@@ -101,35 +129,73 @@ def loss_fn(logits: torch.Tensor, tgt: torch.Tensor, cfg: TrainConfig) -> tuple[
     dice = 1 - (2 * (p * fg_t).sum() + 1) / (p.sum() + fg_t.sum() + 1)
     bb = F.binary_cross_entropy_with_logits(b_l, b_t, pos_weight=torch.tensor(cfg.boundary_pos_weight))
     total = bce + dice + cfg.boundary_loss_weight * bb
-    return total, {"fg_bce": bce.item(), "dice": dice.item(), "boundary_bce": bb.item()}
+    parts = {"fg_bce": bce.item(), "dice": dice.item(), "boundary_bce": bb.item()}
+    if logits.shape[1] > 2:
+        heat = F.mse_loss(torch.sigmoid(logits[:, 2]), tgt[:, 2])
+        on = fg_t > 0.5
+        off = (logits[:, 3:5] - tgt[:, 3:5] / OFFSET_SCALE).abs().sum(1)[on].mean() if on.any() else logits.sum() * 0
+        total = total + cfg.centre_loss_weight * heat + cfg.offset_loss_weight * off
+        parts.update(centre_mse=heat.item(), offset_l1=off.item())
+    return total, parts
 
 
 @torch.no_grad()
 def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4) -> np.ndarray:
-    """(N, 2, H, W) float32 probabilities (edge-padded to multiples of the stride, cropped back)."""
+    """(N, C, H, W) float32 maps (edge-padded to multiples of the stride, cropped back): probabilities of
+    foreground, boundary (and centre), then the centre offsets (dy, dx) in px when the net has the centre head."""
     net.eval()
     n, H, W = rgb_nxhxwx3.shape[:3]
     s = net.stride
     ph, pw = -H % s, -W % s
-    out = np.empty((n, 2, H, W), np.float32)
+    c = net.head.out_channels
+    out = np.empty((n, c, H, W), np.float32)
     for i in range(0, n, batch):
         x = torch.from_numpy(rgb_nxhxwx3[i:i + batch].astype(np.float32)).permute(0, 3, 1, 2)
         x = F.pad(x, (0, pw, 0, ph), mode="replicate")
-        out[i:i + batch] = torch.sigmoid(net(normalise(x)))[:, :, :H, :W].numpy()
+        y = net(normalise(x))[:, :, :H, :W]
+        out[i:i + batch, :3] = torch.sigmoid(y[:, :3]).numpy()
+        if c > 3:
+            out[i:i + batch, 3:] = (y[:, 3:] * OFFSET_SCALE).numpy()
     return out
 
 
 def val_fg_iou(net: SegUNet, rgb: np.ndarray, mask: np.ndarray) -> float:
     """Mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1)."""
-    p = predict(net, rgb)[:, 0] > 0.5
+    return val_scores(net, rgb, mask)["fg_iou"]
+
+
+def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: int = 100) -> dict[str, float]:
+    """``fg_iou``: mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1); ``object_iou``: mean over
+    (view, GT object with >= ``min_visible_px`` px) of the best IoU with an instance extracted by
+    :func:`torm.segmentation.instances.instances_from_maps` with its default settings."""
+    from torm.segmentation.instances import instances_from_maps
+
+    maps = predict(net, rgb)
+    p = maps[:, 0] > 0.5
     g = mask > 0
     inter = (p & g).reshape(len(g), -1).sum(1)
     union = (p | g).reshape(len(g), -1).sum(1)
-    return float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
+    best = []
+    for m, gt in zip(maps, mask, strict=True):
+        inst, _ = instances_from_maps(m)
+        for k in np.unique(gt[gt > 0]):
+            gm = gt == k
+            area = int(gm.sum())
+            if area < min_visible_px:
+                continue
+            ids, cnt = np.unique(inst[gm], return_counts=True)
+            b = 0.0
+            for i, c in zip(ids, cnt, strict=True):
+                if i > 0:
+                    b = max(b, c / (int((inst == i).sum()) + area - c))
+            best.append(b)
+    return {"fg_iou": float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0))),
+            "object_iou": float(np.mean(best)) if best else 1.0}
 
 
 def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 320)) -> Path:
-    """Export ``net`` (eval mode) as ``image`` (1, 3, H, W) RGB 0..255 -> ``logits`` (1, 2, H, W), dynamic H, W."""
+    """Export ``net`` (eval mode) as ``image`` (1, 3, H, W) RGB 0..255 -> ``logits`` (1, C, H, W), dynamic H, W
+    (C = 2, or 5 with the centre head)."""
     net.eval()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -155,7 +221,7 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)  # weight init only; data order comes from the explicit Generator below
-    net = SegUNet(cfg.channels)
+    net = SegUNet(cfg.channels, cfg.centre_head)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     rng = np.random.default_rng(cfg.seed)
     state: dict[str, Any] = {"step": 0, "best_iou": -1.0, "best_step": 0, "history": [], "wall_s": 0.0}
@@ -173,15 +239,22 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         init = Path(cfg.init_from).expanduser()
         if not init.is_file():
             raise ConfigError(f"train.init_from {init} does not exist; point it at a best.pt of an earlier run")
-        saved = torch.load(init, map_location="cpu", weights_only=False)
-        try:
-            net.load_state_dict(saved["model"])
-        except RuntimeError as exc:
-            raise ConfigError(f"train.init_from {init} holds another network ({exc}); train.channels must match"
-                              ) from exc
+        if init.suffix == ".onnx":
+            if not cfg.freeze_bn:
+                raise ConfigError(f"train.init_from {init} is an exported model (BatchNorms folded): set "
+                                  "train.freeze_bn=true, or start from a best.pt")
+            load_onnx_weights(net, init)
+        else:
+            _load_pt(net, init)
         log.info("initialised from %s", init)
     tgt = targets(train_mask, cfg.boundary_radius_px)
-    batcher = Batcher(train_rgb, tgt, cfg, rng)
+    centre = None
+    if cfg.centre_head:  # heatmap + offsets (px) as float16: 3 x 2 bytes per pixel
+        centre = np.empty((len(train_mask), 3, *train_mask.shape[1:]), np.float16)
+        for i, m in enumerate(train_mask):
+            heat, off = centre_targets(m, cfg.centre_sigma_px)
+            centre[i, 0], centre[i, 1:] = heat, off
+    batcher = Batcher(train_rgb, tgt, cfg, rng, centre)
 
     def save(path: Path) -> None:
         tmp = path.with_suffix(".tmp")
@@ -194,6 +267,10 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     running: list[float] = []
     while state["step"] < cfg.steps:
         net.train()
+        if cfg.freeze_bn:
+            for m in net.modules():
+                if isinstance(m, torch.nn.BatchNorm2d):
+                    m.eval()
         lr = cfg.lr * 0.5 * (1 + math.cos(math.pi * state["step"] / cfg.steps))
         for g in opt.param_groups:
             g["lr"] = lr
@@ -207,10 +284,13 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         bar.update(1)
         step = state["step"]
         if step % cfg.val_every == 0 or step == cfg.steps:
-            iou = val_fg_iou(net, val_rgb, val_mask)
-            state["history"].append({"step": step, "loss": float(np.mean(running)), "val_fg_iou": iou, **parts})
+            sc = val_scores(net, val_rgb, val_mask)
+            iou = sc[cfg.select_on]
+            state["history"].append({"step": step, "loss": float(np.mean(running)), "val_fg_iou": sc["fg_iou"],
+                                     "val_object_iou": sc["object_iou"], **parts})
             running = []
-            log.info("step %d: loss %.4f, val fg IoU %.4f", step, state["history"][-1]["loss"], iou)
+            log.info("step %d: loss %.4f, val fg IoU %.4f, val object IoU %.4f", step, state["history"][-1]["loss"],
+                     sc["fg_iou"], sc["object_iou"])
             if iou > state["best_iou"]:
                 state["best_iou"], state["best_step"] = iou, step
                 torch.save({"config": cfg.to_dict(), "model": net.state_dict(), "step": step}, workdir / "best.pt")
@@ -220,8 +300,17 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         if step % cfg.checkpoint_every == 0 or step == cfg.steps:
             save(ck)
     bar.close()
-    return {"steps": state["step"], "wall_s": state["wall_s"], "best_val_fg_iou": state["best_iou"],
+    return {"steps": state["step"], "wall_s": state["wall_s"], f"best_val_{cfg.select_on}": state["best_iou"],
             "best_step": state["best_step"], "history": state["history"]}
+
+
+def _load_pt(net: SegUNet, init: Path) -> None:
+    saved = torch.load(init, map_location="cpu", weights_only=False)
+    try:
+        net.load_state_dict(saved["model"])
+    except RuntimeError as exc:
+        raise ConfigError(f"train.init_from {init} holds another network ({exc}); train.channels and "
+                          "train.centre_head must match") from exc
 
 
 def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
@@ -233,14 +322,14 @@ def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
     if saved.get("config") != cfg.to_dict():
         raise ConfigError(f"{ck} was written with another training config")
     st = saved["state"]
-    return {"steps": st["step"], "wall_s": st["wall_s"], "best_val_fg_iou": st["best_iou"],
+    return {"steps": st["step"], "wall_s": st["wall_s"], f"best_val_{cfg.select_on}": st["best_iou"],
             "best_step": st["best_step"], "history": st["history"]}
 
 
 def load_best(workdir: Path, cfg: TrainConfig) -> SegUNet:
     """The best-validation network of a training run."""
     saved = torch.load(Path(workdir) / "best.pt", map_location="cpu", weights_only=False)
-    net = SegUNet(cfg.channels)
+    net = SegUNet(cfg.channels, cfg.centre_head)
     net.load_state_dict(saved["model"])
     return net.eval()
 
