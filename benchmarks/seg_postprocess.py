@@ -47,7 +47,7 @@ BD = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
 CORE = (4, 8, 16, 32)
 CENTRE_FG = (0.3, 0.4, 0.5, 0.6)
 CENTRE_THR = (0.1, 0.2, 0.3, 0.5)
-NMS = (3, 6)
+NMS = (3, 6, 10, 15)
 VOTE = (10.0, 20.0, 40.0)
 #: every setting key, with the untuned defaults (LearnedSegmenter's POSTPROCESS_DEFAULTS for a 2-map model)
 DEFAULT = {"grouping": "boundary", "fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
