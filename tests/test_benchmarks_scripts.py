@@ -130,7 +130,15 @@ def test_seg_miss_causes_quick_classifies_every_object_and_sweeps_the_neck_split
     for c in doc["causes"].values():
         assert set(c) == {"ok", "background", "merged", "split", "other"}
         assert sum(v["n"] for v in c.values()) > 0
+    # the shipped model groups by centre votes: there are no boundary cores to split, only depth 0 runs
+    assert doc["postprocess"]["grouping"] == "centre"
+    assert [r["core_split_px"] for r in doc["neck_split_sweep"]] == [0.0, 0.0, 0.0]
+    md = (out / "seg_miss_causes.md").read_text()
+    assert md.startswith("# Learned segmenter: why objects are missed") and "only depth 0" in md
+    # the boundary-only model sweeps the neck split and chooses its depth on val
+    boundary_model = ROOT / "torm" / "segmentation" / "models" / "learned_seg_boundary.onnx"
+    _run("seg_miss_causes.py", tmp_path / "b", "--model", str(boundary_model), "--cache", str(tmp_path / "cache"))
+    doc = json.loads((tmp_path / "b" / "out" / "seg_miss_causes.json").read_text())
     sweep = doc["neck_split_sweep"]
     assert {r["core_split_px"] for r in sweep} == {0.0, 2.0} and len(sweep) == 6
     assert doc["neck_split_chosen_on_val"] in (0.0, 2.0)
-    assert (out / "seg_miss_causes.md").read_text().startswith("# Learned segmenter: why objects are missed")
