@@ -171,3 +171,10 @@ def test_flip_tta_negates_the_mirrored_x_offset(tmp_path):
     a, b = seg.maps(rgb, flip_tta=True), seg.maps(mirror, flip_tta=True)
     np.testing.assert_allclose(a[:4], b[:4, :, ::-1], atol=1e-5)
     np.testing.assert_allclose(a[4], -b[4, :, ::-1], atol=1e-5)  # x offsets change sign in the mirror image
+
+
+def test_inference_and_training_agree_on_the_offset_unit():
+    from torm.segmentation import learned
+    from torm.segmentation.training import model
+
+    assert learned.OFFSET_SCALE == model.OFFSET_SCALE
