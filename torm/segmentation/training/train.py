@@ -169,26 +169,18 @@ def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: 
     (view, GT object with >= ``min_visible_px`` px) of the best IoU with an instance extracted by
     :func:`torm.segmentation.instances.instances_from_maps` with its default settings."""
     from torm.segmentation.instances import instances_from_maps
+    from torm.segmentation.training.evaluate import _ious
 
     maps = predict(net, rgb)
     p = maps[:, 0] > 0.5
     g = mask > 0
     inter = (p & g).reshape(len(g), -1).sum(1)
     union = (p | g).reshape(len(g), -1).sum(1)
-    best = []
+    best: list[float] = []
     for m, gt in zip(maps, mask, strict=True):
-        inst, _ = instances_from_maps(m)
-        for k in np.unique(gt[gt > 0]):
-            gm = gt == k
-            area = int(gm.sum())
-            if area < min_visible_px:
-                continue
-            ids, cnt = np.unique(inst[gm], return_counts=True)
-            b = 0.0
-            for i, c in zip(ids, cnt, strict=True):
-                if i > 0:
-                    b = max(b, c / (int((inst == i).sum()) + area - c))
-            best.append(b)
+        pids, _gids, iou, garea = _ious(instances_from_maps(m)[0], gt)
+        per_gt = iou.max(axis=0) if pids else np.zeros(len(garea))
+        best += [float(b) for b, a in zip(per_gt, garea, strict=True) if a >= min_visible_px]
     return {"fg_iou": float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0))),
             "object_iou": float(np.mean(best)) if best else 1.0}
 
