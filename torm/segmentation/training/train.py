@@ -159,11 +159,6 @@ def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4) -> np.ndarray
     return out
 
 
-def val_fg_iou(net: SegUNet, rgb: np.ndarray, mask: np.ndarray) -> float:
-    """Mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1)."""
-    return val_scores(net, rgb, mask)["fg_iou"]
-
-
 def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: int = 100) -> dict[str, float]:
     """``fg_iou``: mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1); ``object_iou``: mean over
     (view, GT object with >= ``min_visible_px`` px) of the best IoU with an instance extracted by
