@@ -43,7 +43,6 @@ class SegUNet(nn.Module):
     def __init__(self, channels: tuple[int, ...] = (12, 24, 32, 48, 64), centre_head: bool = False) -> None:
         super().__init__()
         self.channels = tuple(channels)
-        self.centre_head = bool(centre_head)
         self.down = nn.ModuleList()
         cin = 3
         for c in channels:
@@ -99,12 +98,12 @@ class ExportWrapper(nn.Module):
 def load_onnx_weights(net: SegUNet, path: str | Path) -> SegUNet:
     """Load an exported model's weights into ``net`` (same ``channels``); returns ``net``.
 
-    The exporter folds each BatchNorm into its convolution, so the file holds one (weight, bias) per 3x3
-    convolution in module order plus the head. They go into ``net``'s convolutions, and every BatchNorm becomes
-    the identity plus the folded bias (mean 0, variance 1 - eps, scale 1): ``net`` in eval mode computes what the
-    file computes. Fine-tune such a network with its BatchNorms kept in eval mode (``TrainConfig.freeze_bn``).
-    A file with a 2-channel head loaded into a centre-head network fills the first two head channels; the
-    centre channels keep their initialisation.
+    The exporter folds each BatchNorm into its convolution, so the file's Conv nodes carry one (weight, bias)
+    per 3x3 convolution, in the graph's order (the module order), plus the head. They go into ``net``'s
+    convolutions, and every BatchNorm becomes the identity plus the folded bias (mean 0, variance 1 - eps,
+    scale 1): ``net`` in eval mode computes what the file computes. Fine-tune such a network with its
+    BatchNorms kept in eval mode (``TrainConfig.freeze_bn``). A file with a 2-channel head loaded into a
+    centre-head network fills the first two head channels; the centre channels keep their initialisation.
     """
     import onnx
     from onnx import numpy_helper
@@ -114,19 +113,19 @@ def load_onnx_weights(net: SegUNet, path: str | Path) -> SegUNet:
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"{path} does not exist; point train.init_from at an exported learned_seg .onnx file")
-    inits = {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer}
+    graph = onnx.load(str(path)).graph
+    inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
     convs = [m for m in net.modules() if isinstance(m, nn.Conv2d) and m is not net.head]
     bns = [m for m in net.modules() if isinstance(m, nn.BatchNorm2d)]
-    folded = [(k, v) for k, v in inits.items() if v.ndim == 4 and k not in ("mean", "std") and not k.startswith(
-        "net.head")]
-    if len(folded) != len(convs) or any(tuple(v.shape) != tuple(c.weight.shape) for (_, v), c in zip(
+    # (weight, bias) of every Conv node but the head's, in graph order
+    folded = [(inits[n.input[1]], inits[n.input[2]]) for n in graph.node if n.op_type == "Conv"
+              and n.input[1] != "net.head.weight" and len(n.input) == 3]
+    if len(folded) != len(convs) or any(w.shape != tuple(c.weight.shape) for (w, _), c in zip(
             folded, convs, strict=False)):
-        raise ModelFileError(f"{path}: its convolutions {[tuple(v.shape) for _, v in folded]} do not match a "
+        raise ModelFileError(f"{path}: its convolutions {[w.shape for w, _ in folded]} do not match a "
                              f"SegUNet with channels {net.channels}; train.channels must be the file's")
-    names = list(inits)
     with torch.no_grad():
-        for (k, w), conv, bn in zip(folded, convs, bns, strict=True):
-            b = inits[names[names.index(k) + 1]]
+        for (w, b), conv, bn in zip(folded, convs, bns, strict=True):
             conv.weight.copy_(torch.from_numpy(np.array(w)))
             bn.running_mean.zero_()
             bn.running_var.fill_(1.0 - bn.eps)
