@@ -1,6 +1,7 @@
 """Why the learned segmenter misses objects, and whether splitting instance cores at necks helps.
 
-For each held-out split of the model card's data recipe (``val``, ``test_layouts``, ``test_shapes``; the folder
+For each held-out split of the model card's data recipe (its validation split ``val`` or ``val_rig``,
+``test_layouts``, ``test_shapes``; the folder
 ``benchmarks/seg_postprocess.py`` renders or reuses) and the card's calibrated post-processing:
 
 1. every (view, GT object with >= 100 visible px) is classified by
@@ -8,7 +9,7 @@ For each held-out split of the model card's data recipe (``val``, ``test_layouts
    half of it predicted foreground), ``merged`` (its dominant predicted instance also covers other objects),
    ``split`` (no predicted instance holds half of it), ``other``; with the median visible area per category;
 2. the neck split (:func:`torm.segmentation.instances.split_cores_at_necks`) is swept over its erosion depth
-   (0 = off, the shipped setting); the depth is chosen on ``val`` only and the test splits are reported for
+   (0 = off, the shipped setting); the depth is chosen on the validation split only and the test splits are reported for
    every depth, so the choice can be checked. It acts on boundary cores: with the ``centre`` grouping (a
    centre-head model) only depth 0 is run.
 
@@ -31,12 +32,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as bc  # noqa: E402
-from seg_postprocess import add_split_args, card_splits  # noqa: E402
+from seg_postprocess import add_split_args, card_splits, val_split  # noqa: E402
 
 log = logging.getLogger("bench.seg_miss_causes")
 
 DEPTHS = (0.0, 2.0, 4.0, 6.0)
-SPLITS = ("val", "test_layouts", "test_shapes")
+TEST_SPLITS = ("test_layouts", "test_shapes")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -71,14 +72,16 @@ def main(argv: list[str] | None = None) -> int:
     from torm.segmentation.training.evaluate import evaluate
 
     seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads, input_width=0))
-    recipe, data = card_splits(a, seg, SPLITS)
+    val_name = val_split(seg)
+    splits = (val_name, *TEST_SPLITS)
+    recipe, data = card_splits(a, seg, splits)
     depths = DEPTHS[:2] if a.quick else DEPTHS
     if seg.postprocess["grouping"] == "centre":
         depths = (0.0,)
     held = tuple(seg.card["held_out_shapes"])
     pp = dict(seg.postprocess)
     t0 = time.perf_counter()
-    maps = {s: [seg.maps(im) for im in tqdm(data[s]["rgb"], desc=f"network {s}", unit="view")] for s in SPLITS}
+    maps = {s: [seg.maps(im) for im in tqdm(data[s]["rgb"], desc=f"network {s}", unit="view")] for s in splits}
     net_s = time.perf_counter() - t0
 
     def instances(m: np.ndarray, depth: float) -> np.ndarray:
@@ -88,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
 
     causes, sweep = {}, []
     for depth in depths:
-        for s in SPLITS:
+        for s in splits:
             preds = [instances(m, depth) for m in maps[s]]
             if depth == 0.0:
                 causes[s] = causes_of_split(preds, data[s])
@@ -97,12 +100,12 @@ def main(argv: list[str] | None = None) -> int:
             sweep.append({"split": s, "core_split_px": depth, "object_iou": m["object"]["iou_mean"],
                           "held_out_iou": m["held_out_objects"]["iou_mean"], "miss_rate": m["object"]["miss_rate"],
                           "false_pos_per_view": m["false_positives_per_view"]})
-    val = [r for r in sweep if r["split"] == "val"]
+    val = [r for r in sweep if r["split"] == val_name]
     chosen = max(val, key=lambda r: (r["object_iou"], -r["core_split_px"]))["core_split_px"]
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc = {"context": bc.context(args), "model": seg.config.model_path.name, "renderer": recipe.renderer,
-           "postprocess": pp, "views": {s: int(len(data[s]["rgb"])) for s in SPLITS}, "network_seconds": net_s,
-           "causes": causes, "neck_split_sweep": sweep, "neck_split_chosen_on_val": chosen}
+           "postprocess": pp, "views": {s: int(len(data[s]["rgb"])) for s in splits}, "network_seconds": net_s,
+           "causes": causes, "neck_split_sweep": sweep, "neck_split_chosen_on_val": chosen, "val_split": val_name}
     a.out.mkdir(parents=True, exist_ok=True)
     bc.write_json(a.out / "seg_miss_causes.json", json.loads(json.dumps(doc, default=str)))
     (a.out / "seg_miss_causes.md").write_text(report(doc))
@@ -129,7 +132,8 @@ def report(doc: dict[str, Any]) -> str:
         + "\n## Neck split of instance cores (0 = off, the shipped setting)\n\n"
         + ("The card's grouping is `centre` (instances from centre votes, no boundary cores to split): only depth 0 "
            "ran.\n\n" if doc["postprocess"].get("grouping") == "centre" else
-           f"Depth chosen on `val`: **{doc['neck_split_chosen_on_val']:g} px** (ties go to the smaller depth).\n\n")
+           f"Depth chosen on `{doc.get('val_split', 'val')}`: **{doc['neck_split_chosen_on_val']:g} px** "
+           "(ties go to the smaller depth).\n\n")
         + bc.md_table(["split", "core split px", "object IoU", "held-out shapes IoU", "miss rate",
                        "false pos / view"], srow, 4))
 

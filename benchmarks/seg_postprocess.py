@@ -7,12 +7,14 @@ head (plus an instance-centre probability and each pixel's offset to its centre)
 ``nms_px``, ``max_vote_px``) or ``hybrid`` (the boundary instances split by centre votes: all of them). The first
 shipped model used the untuned 0.5 / 0.5 / 8 boundary grouping. This script:
 
-1. renders (or reuses) the ``val``, ``test_layouts`` and ``test_shapes`` splits of the model card's own data
+1. renders (or reuses) the validation split (:func:`val_split`: the one the model's training run selected on,
+   ``val`` or ``val_rig``), ``test_layouts`` and ``test_shapes`` splits of the model card's own data
    recipe (``runs/seg_data/<renderer>``, the folder ``benchmarks/segmentation.py --learned`` uses);
 2. runs the network once per view (optionally also on the horizontally flipped view, averaging the two
    maps: test-time augmentation ``flip_tta``);
-3. grid-searches the settings (:func:`grid`; for a centre-head model all three groupings) on ``val`` only
-   (random layouts of the training distribution, 320x192 windows;
+3. grid-searches the settings (:func:`grid`; for a centre-head model all three groupings) on that split only
+   (``val``: random layouts of the training distribution, 320x192 windows; ``val_rig``: library shapes in the
+   rig's full frames;
    the training run used it only to pick its checkpoint) by mean object IoU (best-match IoU per (view, GT
    object), :func:`torm.segmentation.training.evaluate.evaluate`);
 4. reports the default and the chosen setting on both test splits, which take no part in any choice.
@@ -95,6 +97,12 @@ def add_split_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=bc.THREADS)
 
 
+def val_split(seg: Any) -> str:
+    """The split a model's choices are made on: its training run's ``val_split`` (``val``: random windows of the
+    training distribution; ``val_rig``: library shapes in the rig's full frames, shaped like deployment)."""
+    return str((seg.card or {}).get("train", {}).get("val_split", "val"))
+
+
 def card_splits(a: argparse.Namespace, seg: Any, splits: tuple[str, ...]) -> tuple[Any, dict[str, Any]]:
     """(data recipe, {split: loaded split}) of the model card's recipe, rendered first if missing
     (``--quick``: 1 tiny MuJoCo-rendered shard per split)."""
@@ -153,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
 
     seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads, input_width=0))
-    splits = ("val", "test_layouts", "test_shapes")
+    val = val_split(seg)
+    splits = (val, "test_layouts", "test_shapes")
     recipe, data = card_splits(a, seg, splits)
     held = tuple(seg.card["held_out_shapes"])
     t0 = time.perf_counter()
@@ -165,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         settings.insert(0, dict(default))
     val_rows = []
     for st in tqdm(settings, desc="val grid", unit="setting"):
-        val_rows.append(_row("val", st, score(probs["val"][st["flip_tta"]], data["val"], st, held)))
+        val_rows.append(_row(val, st, score(probs[val][st["flip_tta"]], data[val], st, held)))
     best = max(val_rows, key=lambda r: r["object_iou"])
     chosen = {k: best[k] for k in DEFAULT}
     default_val = next(r for r in val_rows if all(r[k] == v for k, v in default.items()))
@@ -177,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
             test_rows.append(r)
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc = {"context": bc.context(args), "model": seg.config.model_path.name, "renderer": recipe.renderer,
-           "recipe": recipe.to_dict(), "views": {s: int(len(data[s]["rgb"])) for s in splits},
+           "recipe": recipe.to_dict(), "val_split": val, "views": {s: int(len(data[s]["rgb"])) for s in splits},
            "channels": seg.channels, "network_seconds": net_s, "default": default, "chosen": chosen,
            "val_default": default_val,
            "val_best": best, "val_grid": val_rows, "test": test_rows}
@@ -198,7 +207,8 @@ def card_entry(doc: dict[str, Any]) -> dict[str, Any]:
     """The model card's ``postprocess`` entry: the chosen setting, how it was chosen and its test figures."""
     keys = ("silhouette_iou", "object_iou", "held_out_iou", "miss_rate", "false_pos_per_view")
     test = {f"{r['split']} ({r['setting']})": {k: r[k] for k in keys} for r in doc["test"]}
-    return {**doc["chosen"], "chosen_by": "benchmarks/seg_postprocess.py: best mean object IoU on the val split",
+    return {**doc["chosen"], "chosen_by": "benchmarks/seg_postprocess.py: best mean object IoU on the "
+            f"{doc.get('val_split', 'val')} split",
             "val_object_iou": doc["val_best"]["object_iou"], "val_object_iou_default": doc["val_default"]["object_iou"],
             "test": test, "date_utc": doc["context"]["date_utc"]}
 
@@ -223,10 +233,12 @@ def report(doc: dict[str, Any]) -> str:
     types = sorted({t for r in doc["test"] for t in r["per_type"]})
     trows = [[t, *[r["per_type"].get(t) for r in doc["test"]]] for t in types]
     return (
-        "# Learned segmenter: post-processing calibrated on val, measured on the test splits\n\n"
+        f"# Learned segmenter: post-processing calibrated on {doc.get('val_split', 'val')}, measured on the test "
+        "splits\n\n"
         "Generated by `benchmarks/seg_postprocess.py`. Model `" + doc["model"] + "`, test renders from its card's "
-        f"recipe (renderer `{doc['renderer']}`); views: {doc['views']}. The settings are chosen on `val` only "
-        "(best mean object IoU); `test_layouts` / `test_shapes` are measured once with the default and once with "
+        f"recipe (renderer `{doc['renderer']}`); views: {doc['views']}. The settings are chosen on "
+        f"`{doc.get('val_split', 'val')}` only (best mean object IoU); `test_layouts` / `test_shapes` are "
+        "measured once with the default and once with "
         "the chosen setting. Object IoU: best-match IoU per (view, GT object with >= 100 visible px); a miss is "
         "IoU < 0.5. Flip TTA: the maps averaged with those of the horizontally flipped view (2 network "
         f"runs per view). The model has {doc.get('channels', 2)} output maps"
@@ -234,7 +246,8 @@ def report(doc: dict[str, Any]) -> str:
         + ".\n\n**Run context**\n\n" + bc.context_md(ctx) + "\n## Test splits\n\n"
         + bc.md_table(head, rows, 3) + "\n## Per object type (object IoU; columns in the order of the rows above)\n\n"
         + bc.md_table(["type", *[f"{r['split']} {r['setting']}" for r in doc["test"]]], trows, 3)
-        + "\n## Validation grid: the default, the 10 best, then the best of each grouping\n\n"
+        + f"\n## Validation grid (`{doc.get('val_split', 'val')}`): the default, the 10 best, then the best of "
+        "each grouping\n\n"
         + bc.md_table([*names, "silhouette IoU", "object IoU", "miss rate", "false pos / view"], vrows, 3))
 
 

@@ -206,17 +206,23 @@ def build_report(doc: dict[str, Any], out: Path) -> None:
     log.info("wrote %s", out / "segmentation.md")
 
 
+def _ci(stats: dict[str, Any]) -> str:
+    ci = stats.get("iou_ci95_scenes")
+    return f"{ci[0]:.3f}-{ci[1]:.3f}" if ci else "-"
+
+
 def _learned_report(doc: dict[str, Any], out: Path, tag: str) -> None:
     """Markdown of the held-out evaluation (``segmentation_<tag>.md``)."""
     card = doc["model_card"]
     rows, trows = [], []
     for split, r in doc["splits"].items():
         if "error" in r:
-            rows.append([split, r["error"][:80], *[None] * 9])
+            rows.append([split, r["error"][:80], *[None] * 11])
             continue
         c = r["miss_correlation_neighbour_views"]
         rows.append([split, r["scenes"], r["views"], r["silhouette_iou_mean"], r["object"]["iou_mean"],
-                     r["held_out_objects"]["iou_mean"], r["miss_rate_per_view_mean"], r["views_with_a_miss"],
+                     _ci(r["object"]), r["held_out_objects"]["iou_mean"], _ci(r["held_out_objects"]),
+                     r["miss_rate_per_view_mean"], r["views_with_a_miss"],
                      r["false_positives_per_view"], c.get("phi"),
                      f"{bc.fmt(c.get('p_miss_given_neighbour_missed'))} vs {bc.fmt(c.get('p_miss'))}"])
         for t, st in r["per_type"].items():
@@ -236,8 +242,9 @@ def _learned_report(doc: dict[str, Any], out: Path, tag: str) -> None:
           f"visible px), best IoU with any predicted instance; a miss is IoU < {doc['match_iou']}; a false positive "
           f"is a predicted instance with IoU < {doc['match_iou']} against every GT object. Miss correlation: phi "
           "coefficient of an object's miss indicators in a view and in its nearest view (by viewing direction), "
-          "and P(miss | neighbour missed) vs P(miss). Nothing was tuned on these splits (checkpoint and "
-          "post-processing chosen on `val`). Post-processing: "
+          "and P(miss | neighbour missed) vs P(miss). 95 % CI: percentile bootstrap of the mean over scenes (the "
+          "views of a scene are not independent). Nothing was tuned on these splits (checkpoint and "
+          f"post-processing chosen on `{card['train'].get('val_split', 'val')}`). Post-processing: "
           + (", ".join(f"{k} {v}" for k, v in doc["postprocess"].items()) if doc.get("postprocess")
              else "0.5 / 0.5 / 8")
           + " (`benchmarks/seg_postprocess.md`).\n",
@@ -247,7 +254,8 @@ def _learned_report(doc: dict[str, Any], out: Path, tag: str) -> None:
           f"{bc.fmt(tgt['unseen_shapes_measured'])}, **{'met' if tgt['unseen_shapes_met'] else 'not met'}**).\n",
           "**Run context**\n", bc.context_md(doc["context"]),
           "## Per split\n",
-          bc.md_table(["split", "scenes", "views", "silhouette IoU", "object IoU", "held-out object IoU",
+          bc.md_table(["split", "scenes", "views", "silhouette IoU", "object IoU", "object IoU 95% CI",
+                       "held-out object IoU", "held-out 95% CI",
                        "miss rate / view", "views with a miss", "false pos. / view", "miss phi (neighbours)",
                        "P(miss | nb missed) vs P(miss)"], rows),
           "\n## Per object type\n",

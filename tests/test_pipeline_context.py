@@ -23,3 +23,18 @@ def test_context_names_every_choice():
 def test_unknown_choice_lists_the_valid_ones(key):
     with pytest.raises(UnknownNameError, match="valid choices"):
         config.from_dict(TrialConfig, {}, overrides=[f"{key}=nonsense"])
+
+
+def test_learned_segmenter_context_names_the_model_file_and_its_hash(tmp_path):
+    ctx = trial_context(config.from_dict(TrialConfig, {"method": "torm"},
+                                         overrides=["segmentation.segmenter=learned"]))
+    assert ctx["segmenter"] == "learned" and ctx["segmenter_model"].startswith("learned_seg.onnx@sha256:")
+    other = tmp_path / "mine.onnx"
+    other.write_bytes(b"not really a model")
+    cfg = config.from_dict(TrialConfig, {"method": "torm", "segmentation": {"segmenter": "learned",
+                                                                           "options": {"model": str(other)}}})
+    assert trial_context(cfg)["segmenter_model"] == "mine.onnx@sha256:" + __import__("hashlib").sha256(
+        b"not really a model").hexdigest()[:12]
+    cfg = config.from_dict(TrialConfig, {"method": "torm", "segmentation": {"segmenter": "learned",
+                                                                           "options": {"model": "/nope.onnx"}}})
+    assert trial_context(cfg)["segmenter_model"] == "nope.onnx@missing"

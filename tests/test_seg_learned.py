@@ -260,6 +260,47 @@ def test_parallel_shard_rendering_gives_the_same_dataset(tmp_path):
         generate(recipe, tmp_path / "bad", workers=0)
 
 
+def test_library_and_rig_splits_and_recipes_that_only_add_shards(tmp_path):
+    """``train_library`` / ``val_rig`` hold library shapes only; ``val_rig`` is the rig's full frames; a recipe that
+    only adds shards reuses the folder (its shards are untouched), any other change is refused; the training data
+    append ``train_library`` to ``train``; a run cannot select on a split it does not render."""
+    from torm.segmentation.training.dataset import (
+        DataRecipe,
+        generate,
+        load_split,
+        sample_objects,
+        shard_path,
+    )
+    from torm.segmentation.training.run import SegTrainingSpec, training_data
+    from torm.segmentation.training.shapes import HELD_OUT_SHAPES, train_library_objects
+    from torm.segmentation.training.train import TrainConfig
+
+    recipe = DataRecipe(n_procedural=6)
+    rng = np.random.default_rng(0)
+    for split in ("train_library", "val_rig"):
+        objs = {o for _ in range(100) for o in sample_objects(split, recipe, rng)}
+        assert objs <= set(train_library_objects()) and not objs & set(HELD_OUT_SHAPES)
+    small = dict(renderer="mujoco", width=64, height=48, full_width=128, full_height=72, n_procedural=6,
+                 objects_per_scene=(1, 2), views_per_scene=2, scenes_per_shard=1, test_views=3)
+    r1 = DataRecipe(**small, shards={"train": 1, "val_rig": 1})
+    generate(r1, tmp_path, splits=("train", "val_rig"), progress=False)
+    assert load_split(tmp_path, "val_rig")["rgb"].shape == (3, 72, 128, 3)  # full frames of the rig
+    assert load_split(tmp_path, "train")["rgb"].shape == (2, 48, 64, 3)  # windows
+    before = shard_path(tmp_path, "train", 0).stat().st_mtime_ns
+    r2 = DataRecipe(**small, shards={"train": 1, "train_library": 1, "val_rig": 1})
+    generate(r2, tmp_path, progress=False)
+    assert shard_path(tmp_path, "train", 0).stat().st_mtime_ns == before
+    data = training_data(r2, tmp_path)
+    assert len(data["rgb"]) == 4 and len(data["meta"]) == 2 and list(data["scene"]) == [0, 0, 1, 1]
+    assert set(data["meta"][1]["objects"]) <= set(train_library_objects())
+    with pytest.raises(ConfigError, match="another data recipe"):
+        generate(DataRecipe(**{**small, "width": 80}, shards={"train": 1}), tmp_path, progress=False)
+    with pytest.raises(ConfigError, match="val_split"):
+        TrainConfig(val_split="test_layouts")
+    with pytest.raises(ConfigError, match="no shards"):
+        SegTrainingSpec(data=DataRecipe(shards={"train": 1, "val": 1}), train=TrainConfig(val_split="val_rig"))
+
+
 def _asymmetric_onnx(path: Path) -> Path:
     """A 3x3 conv whose kernel is not mirror-symmetric, so a view and its mirror image get different maps."""
     rng = np.random.default_rng(0)
@@ -335,3 +376,19 @@ def test_miss_causes_name_each_failure_on_hand_built_views() -> None:
     assert miss_causes(np.zeros_like(gt), np.zeros_like(gt)) == {}
     with pytest.raises(ValueError, match="must both be"):
         miss_causes(pred[:, :10], gt)
+
+
+def test_scene_bootstrap_interval_contains_the_mean_and_widens_with_scene_spread() -> None:
+    from torm.segmentation.training.evaluate import scene_bootstrap_ci
+
+    same = scene_bootstrap_ci([0.8] * 6, [0, 0, 1, 1, 2, 2])
+    assert same == pytest.approx((0.8, 0.8))
+    vals, scenes = [0.9, 0.9, 0.5, 0.5, 0.7, 0.7, 0.8, 0.6], [0, 0, 1, 1, 2, 2, 3, 3]
+    lo, hi = scene_bootstrap_ci(vals, scenes)
+    assert lo < np.mean(vals) < hi and lo >= 0.5 and hi <= 0.9
+    assert scene_bootstrap_ci(vals, scenes) == (lo, hi)  # seeded
+    wide = scene_bootstrap_ci([0.99, 0.99, 0.1, 0.1, 0.5, 0.5, 0.8, 0.6], scenes)
+    assert wide[1] - wide[0] > hi - lo
+    assert scene_bootstrap_ci([0.5, 0.7], [3, 3]) is None  # one scene: no interval
+    with pytest.raises(ValueError, match="same length"):
+        scene_bootstrap_ci([0.5], [0, 1])

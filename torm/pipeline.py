@@ -207,12 +207,14 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
 
     Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm: its segmenter, ``noisy:<preset>``
     for the error model; the depth baselines: ``gt``, they cut with the capture's masks), ``renderer``,
-    ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn), ``backend``.
+    ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn), ``backend``;
+    with the ``learned`` segmenter also ``segmenter_model`` (:func:`torm.segmentation.learned.model_fingerprint`:
+    file name and content hash).
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
     torm_method = config.method == "torm"
-    return {
+    ctx = {
         "method": config.method,
         "reconstruction_mode": config.reconstruction.mode if torm_method else None,
         "segmenter": segmenter if torm_method else ("gt" if config.method in ("depth", "depth_fusion") else None),
@@ -222,6 +224,11 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
                     if config.world.factors and config.world.realism != "ideal" else config.world.realism),
         "backend": config.backend,
     }
+    if torm_method and seg.segmenter == "learned":
+        from torm.segmentation.learned import model_fingerprint
+
+        ctx["segmenter_model"] = model_fingerprint(str(seg.options.get("model", "") or ""))
+    return ctx
 
 
 def make_backend(config: TrialConfig) -> Any:

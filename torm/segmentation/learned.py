@@ -54,6 +54,19 @@ STRIDE = 16
 OFFSET_SCALE = 10.0
 #: post-processing used when neither the config nor the model card sets it (the first model's untuned values;
 #: ``grouping`` None = ``centre`` for a centre-head model, else ``boundary``)
+def model_fingerprint(model: str | Path = "") -> str:
+    """``<file name>@sha256:<first 12 hex>`` of a learned-segmenter model file (``""``: the shipped one), or
+    ``<file name>@missing``: what a result record names as the model that segmented it."""
+    import hashlib
+
+    path = Path(model).expanduser() if model else DEFAULT_MODEL
+    try:
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    except OSError:
+        return f"{path.name}@missing"
+    return f"{path.name}@sha256:{digest}"
+
+
 POSTPROCESS_DEFAULTS: dict[str, Any] = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
                                         "flip_tta": False, "grouping": None, "centre_threshold": 0.3, "nms_px": 5,
                                         "max_vote_px": 20.0}

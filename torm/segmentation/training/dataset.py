@@ -13,9 +13,17 @@ lets the objects settle and rejects layouts that tip, slide or interpenetrate. O
                       look-at point jittered by ``target_jitter`` m) and ``views_per_scene`` views per scene,
                       each rendered as a ``width`` x ``height`` window of the full 640x360 camera around the
                       objects (:meth:`DataRecipe.crop_K`: objects keep the pipeline's pixel size);
+``train_library``     optional extra training scenes drawn like ``train`` but with library shapes only (the lab
+                      glassware and cups the benchmarks use); used for training together with ``train``;
+``val_rig``           optional validation split shaped like deployment: library shapes only and the rig's full frames
+                      (as ``test_layouts``, own seeds); what a training run or a post-processing search may select on
+                      instead of ``val`` (random windows, half procedural shapes);
 ``test_layouts``      library shapes seen in training only, new layouts (seeds disjoint from train/val), the
                       capture rig's own Fibonacci layout (``test_views`` full 640x360 views, radius 0.5 m, 20-80 deg);
 ``test_shapes``       every scene holds at least one held-out shape (plus seen library shapes), same cameras.
+
+Shard ``i`` of a split does not depend on the shard counts (``shards``), so a recipe that only asks for more shards
+(or new splits) reuses the shards already rendered under the same folder.
 
 A shard (``<root>/<split>/shard_00000.npz``) holds ``rgb`` (N, H, W, 3) uint8, ``mask`` (N, H, W) uint8
 (0 background, k = object k), ``T_world_cam`` (N, 4, 4), ``K`` (N, 3, 3), ``scene`` (N,) index of the view's scene in
@@ -39,8 +47,12 @@ from torm.geometry import look_at_cv
 
 log = logging.getLogger(__name__)
 
-SPLITS = ("train", "val", "test_layouts", "test_shapes")
-_SPLIT_SALT = {"train": 1, "val": 2, "test_layouts": 3, "test_shapes": 4}
+SPLITS = ("train", "train_library", "val", "val_rig", "test_layouts", "test_shapes")
+#: splits rendered as the rig's full frames (the others: windows of random cameras)
+RIG_SPLITS = ("val_rig", "test_layouts", "test_shapes")
+#: splits whose scenes hold library shapes only
+LIBRARY_SPLITS = ("train_library", "val_rig", "test_layouts")
+_SPLIT_SALT = {"train": 1, "val": 2, "test_layouts": 3, "test_shapes": 4, "train_library": 5, "val_rig": 6}
 
 
 @dataclass(frozen=True)
@@ -151,7 +163,7 @@ def sample_objects(split: str, recipe: DataRecipe, rng: np.random.Generator) -> 
     if split in ("train", "val"):
         return tuple(str(rng.choice(lib)) if rng.random() < recipe.library_fraction else str(rng.choice(proc))
                      for _ in range(n))
-    if split == "test_layouts":
+    if split in LIBRARY_SPLITS:
         return tuple(str(rng.choice(lib)) for _ in range(n))
     k = int(rng.integers(1, min(n, 3) + 1))
     objs = [str(rng.choice(held)) for _ in range(k)] + [str(rng.choice(lib)) for _ in range(n - k)]
@@ -194,8 +206,7 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
                 log.info("scene %d/%d/%d rejected (%s); drawing another object set", shard, j, _attempt, exc)
         if world is None:
             continue
-        test = split.startswith("test")
-        if test:  # full frames of the rig layout
+        if split in RIG_SPLITS:  # full frames of the rig layout
             Ts = rig_poses(recipe.test_views)
             K_v = np.repeat(recipe.K()[None], len(Ts), axis=0)
             w, h = recipe.full_width, recipe.full_height
@@ -241,10 +252,15 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     rec_path = root / "recipe.json"
-    doc = json.dumps(recipe.to_dict(), indent=2, sort_keys=True)
-    if rec_path.exists() and rec_path.read_text() != doc:
-        raise ConfigError(f"{root} holds shards of another data recipe ({rec_path}); use another folder or delete it")
-    rec_path.write_text(doc)
+    mine = json.loads(json.dumps(recipe.to_dict()))  # tuples as lists, as stored
+    if rec_path.exists():  # shard contents do not depend on the shard counts: compare everything else
+        theirs = json.loads(rec_path.read_text())
+        if {k: v for k, v in theirs.items() if k != "shards"} != {k: v for k, v in mine.items() if k != "shards"}:
+            raise ConfigError(f"{root} holds shards of another data recipe ({rec_path}); use another folder or "
+                              "delete it")
+        old = theirs.get("shards", {})
+        mine["shards"] = {s: max(int(old.get(s, 0)), int(mine["shards"].get(s, 0))) for s in {*old, *mine["shards"]}}
+    rec_path.write_text(json.dumps(mine, indent=2, sort_keys=True))
     jobs = [(s, i) for s in splits for i in range(recipe.shards.get(s, 0))]
     todo = [(s, i) for s, i in jobs if not shard_path(root, s, i).exists()]
     if workers > 1 and len(todo) > 1:

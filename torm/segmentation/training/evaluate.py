@@ -6,6 +6,8 @@ predicted instance is a **false positive** when its best IoU with every GT objec
 Miss correlation across views: for every (object, view) pair and the view's nearest neighbour by viewing
 direction (both with the object visible), the phi coefficient of the two miss indicators, and
 P(miss | neighbour missed) beside P(miss). Independent per-view errors give phi ~ 0.
+Mean object IoUs carry a 95 % bootstrap interval over scenes (:func:`scene_bootstrap_ci`): the views of one
+scene are not independent, so a split of a dozen scenes pins its mean only to a few hundredths.
 """
 
 from __future__ import annotations
@@ -33,6 +35,24 @@ def _ious(pred: np.ndarray, gt: np.ndarray) -> tuple[list[int], list[int], np.nd
     return pids, gids, iou, garea
 
 
+def scene_bootstrap_ci(values: list[float], scenes: list[int], n_boot: int = 2000, seed: int = 0,
+                       level: float = 0.95) -> tuple[float, float] | None:
+    """Percentile bootstrap interval of the mean of ``values`` resampling whole scenes (with replacement):
+    (lo, hi), or None with fewer than 2 scenes. ``scenes[i]`` is the scene of ``values[i]``."""
+    v, sc = np.asarray(values, float), np.asarray(scenes)
+    if v.shape != sc.shape:
+        raise ValueError(f"values {v.shape} and scenes {sc.shape} must have the same length")
+    ids = np.unique(sc)
+    if len(ids) < 2:
+        return None
+    sums = np.array([v[sc == i].sum() for i in ids])
+    counts = np.array([np.count_nonzero(sc == i) for i in ids])
+    pick = np.random.default_rng(seed).integers(0, len(ids), (n_boot, len(ids)))
+    means = sums[pick].sum(1) / counts[pick].sum(1)
+    a = (1 - level) / 2
+    return float(np.quantile(means, a)), float(np.quantile(means, 1 - a))
+
+
 def evaluate(segment: Callable[[np.ndarray], np.ndarray], data: dict[str, Any], held_out: tuple[str, ...] = (),
              match_iou: float = 0.5, min_visible_px: int = 100) -> dict[str, Any]:
     """Metrics of ``segment`` (RGB (H, W, 3) uint8 -> (H, W) int instance mask) on a loaded test split."""
@@ -41,6 +61,7 @@ def evaluate(segment: Callable[[np.ndarray], np.ndarray], data: dict[str, Any], 
     sil = silhouette_iou(preds, gt_all)
     per_type: dict[str, list[float]] = defaultdict(list)
     obj_iou_all, obj_iou_held, obj_iou_seen = [], [], []
+    sc_all, sc_held, sc_seen = [], [], []  # each value's scene
     miss = {}  # (scene, object id, view index) -> bool
     fp_per_view, miss_per_view = [], []
     for v in range(len(rgb)):
@@ -54,7 +75,9 @@ def evaluate(segment: Callable[[np.ndarray], np.ndarray], data: dict[str, Any], 
             name = meta["objects"][g - 1]
             per_type[name].append(float(best[b]))
             obj_iou_all.append(float(best[b]))
+            sc_all.append(int(scene[v]))
             (obj_iou_held if name in held_out else obj_iou_seen).append(float(best[b]))
+            (sc_held if name in held_out else sc_seen).append(int(scene[v]))
             m = bool(best[b] < match_iou)
             miss[(int(scene[v]), g, v)] = m
             n_vis += 1
@@ -86,16 +109,21 @@ def evaluate(segment: Callable[[np.ndarray], np.ndarray], data: dict[str, Any], 
         sd = x.std(axis=0)
         corr["phi"] = float(np.corrcoef(x[:, 0], x[:, 1])[0, 1]) if np.all(sd > 0) else None
 
-    def stats(v: list[float]) -> dict[str, Any]:
+    def stats(v: list[float], sc: list[int] | None = None) -> dict[str, Any]:
         a = np.asarray(v)
-        return {"n": int(a.size), "iou_mean": float(a.mean()) if a.size else None,
-                "iou_median": float(np.median(a)) if a.size else None,
-                "miss_rate": float(np.mean(a < match_iou)) if a.size else None}
+        out = {"n": int(a.size), "iou_mean": float(a.mean()) if a.size else None,
+               "iou_median": float(np.median(a)) if a.size else None,
+               "miss_rate": float(np.mean(a < match_iou)) if a.size else None}
+        if sc is not None:
+            ci = scene_bootstrap_ci(v, sc) if a.size else None
+            out["iou_ci95_scenes"] = list(ci) if ci else None
+        return out
 
     return {
         "views": int(len(rgb)), "scenes": int(len(np.unique(scene))),
         "silhouette_iou_mean": sil["mean"], "silhouette_iou_min": sil["min"],
-        "object": stats(obj_iou_all), "held_out_objects": stats(obj_iou_held), "seen_objects": stats(obj_iou_seen),
+        "object": stats(obj_iou_all, sc_all), "held_out_objects": stats(obj_iou_held, sc_held),
+        "seen_objects": stats(obj_iou_seen, sc_seen),
         "per_type": {k: stats(v) for k, v in sorted(per_type.items())},
         "miss_rate_per_view_mean": float(np.mean(miss_per_view)),
         "views_with_a_miss": float(np.mean(np.asarray(miss_per_view) > 0)),

@@ -37,6 +37,26 @@ class SegTrainingSpec:
     data: DataRecipe = dataclasses.field(default_factory=DataRecipe)
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
 
+    def __post_init__(self) -> None:
+        from torm.errors import ConfigError
+
+        if not self.data.shards.get(self.train.val_split, 0):
+            raise ConfigError(f"train.val_split {self.train.val_split!r} has no shards in data.shards "
+                              f"{dict(self.data.shards)}; add data.shards.{self.train.val_split} or select on 'val'")
+
+
+def training_data(recipe: DataRecipe, data_dir: Path) -> dict[str, Any]:
+    """The ``train`` split, with the ``train_library`` split appended when the recipe asks for it (rgb, mask and
+    meta; scene indices of the appended views shifted past ``train``'s)."""
+    import numpy as np
+
+    tr = load_split(data_dir, "train")
+    if not recipe.shards.get("train_library", 0):
+        return tr
+    lib = load_split(data_dir, "train_library")
+    return {"rgb": np.concatenate([tr["rgb"], lib["rgb"]]), "mask": np.concatenate([tr["mask"], lib["mask"]]),
+            "scene": np.concatenate([tr["scene"], lib["scene"] + len(tr["meta"])]), "meta": tr["meta"] + lib["meta"]}
+
 
 def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[str, Any]:
     """Held-out metrics of the ONNX model on ``test_layouts`` and ``test_shapes`` (what the card reports)."""
@@ -72,7 +92,7 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
     t0 = time.perf_counter()
     generate(spec.data, data_dir, progress=progress, workers=workers)
     t_data = time.perf_counter() - t0
-    tr, va = load_split(data_dir, "train"), load_split(data_dir, "val")
+    tr, va = training_data(spec.data, data_dir), load_split(data_dir, spec.train.val_split)
     if export_only:
         summary = checkpoint_summary(work_dir, spec.train)
     else:
@@ -87,7 +107,8 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "train": spec.train.to_dict(), "data": spec.data.to_dict(),
         "held_out_shapes": list(HELD_OUT_SHAPES),
-        "dataset": {"train_views": int(len(tr["rgb"])), "val_views": int(len(va["rgb"])),
+        "dataset": {"train_views": int(len(tr["rgb"])), "val_split": spec.train.val_split,
+                    "val_views": int(len(va["rgb"])),
                     "train_scenes": len(tr["meta"]), "render_s_this_run": t_data},
         "training": {**{k: v for k, v in summary.items() if k != "history"},
                      "complete": summary["steps"] >= spec.train.steps}, "history": summary["history"],

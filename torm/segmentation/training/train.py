@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 
 #: validation scores a run can select its exported checkpoint on
 SELECT_ON = ("fg_iou", "object_iou")
+#: data splits a run can select its checkpoint on (see :mod:`torm.segmentation.training.dataset`)
+VAL_SPLITS = ("val", "val_rig")
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ class TrainConfig:
     offset_loss_weight: float = 1.0
     freeze_bn: bool = False  # BatchNorms in eval mode while training (needed after an .onnx init_from)
     select_on: str = "fg_iou"  # the validation score that picks the exported checkpoint: fg_iou | object_iou
+    val_split: str = "val"  # the data split that score is measured on: val | val_rig (the rig's full frames)
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
@@ -77,6 +80,8 @@ class TrainConfig:
             raise ConfigError("train: need lr > 0 and threads >= 1")
         if self.select_on not in SELECT_ON:
             raise ConfigError(f"train.select_on {self.select_on!r}; valid choices: {', '.join(SELECT_ON)}")
+        if self.val_split not in VAL_SPLITS:
+            raise ConfigError(f"train.val_split {self.val_split!r}; valid choices: {', '.join(VAL_SPLITS)}")
         if self.centre_sigma_px <= 0 or self.centre_loss_weight < 0 or self.offset_loss_weight < 0:
             raise ConfigError("train: need centre_sigma_px > 0 and centre/offset loss weights >= 0")
 
