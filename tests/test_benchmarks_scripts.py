@@ -110,7 +110,9 @@ def test_seg_postprocess_quick_chooses_on_val_and_reports_test(tmp_path: Path) -
     _run("seg_postprocess.py", tmp_path)
     out = tmp_path / "out"
     doc = json.loads((out / "seg_postprocess.json").read_text())
-    assert set(doc["views"]) == {"val", "test_layouts", "test_shapes"}
+    # the shipped model's training run selected on val_rig (the rig's full frames), so its choices are made there
+    assert doc["val_split"] == "val_rig" and set(doc["views"]) == {"val_rig", "test_layouts", "test_shapes"}
+    assert {r["split"] for r in doc["val_grid"]} == {"val_rig"}
     # the grid holds the default, so the setting chosen on val scores at least as well there
     assert doc["val_best"]["object_iou"] >= doc["val_default"]["object_iou"]
     assert doc["chosen"] == {k: doc["val_best"][k] for k in doc["default"]}
@@ -119,14 +121,15 @@ def test_seg_postprocess_quick_chooses_on_val_and_reports_test(tmp_path: Path) -
         ("test_shapes", "chosen on val")]
     for r in doc["test"]:
         assert 0.0 <= r["object_iou"] <= 1.0 and 0.0 <= r["silhouette_iou"] <= 1.0
-    assert (out / "seg_postprocess.md").read_text().startswith("# Learned segmenter: post-processing")
+    assert (out / "seg_postprocess.md").read_text().startswith("# Learned segmenter: post-processing calibrated on "
+                                                               "val_rig")
 
 
 def test_seg_miss_causes_quick_classifies_every_object_and_sweeps_the_neck_split(tmp_path: Path) -> None:
     _run("seg_miss_causes.py", tmp_path)
     out = tmp_path / "out"
     doc = json.loads((out / "seg_miss_causes.json").read_text())
-    assert set(doc["causes"]) == {"val", "test_layouts", "test_shapes"}
+    assert set(doc["causes"]) == {"val_rig", "test_layouts", "test_shapes"} and doc["val_split"] == "val_rig"
     for c in doc["causes"].values():
         assert set(c) == {"ok", "background", "merged", "split", "other"}
         assert sum(v["n"] for v in c.values()) > 0
@@ -141,4 +144,5 @@ def test_seg_miss_causes_quick_classifies_every_object_and_sweeps_the_neck_split
     doc = json.loads((tmp_path / "b" / "out" / "seg_miss_causes.json").read_text())
     sweep = doc["neck_split_sweep"]
     assert {r["core_split_px"] for r in sweep} == {0.0, 2.0} and len(sweep) == 6
+    assert doc["val_split"] == "val" and {r["split"] for r in sweep} == {"val", "test_layouts", "test_shapes"}
     assert doc["neck_split_chosen_on_val"] in (0.0, 2.0)
