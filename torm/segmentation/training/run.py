@@ -40,7 +40,7 @@ class SegTrainingSpec:
     def __post_init__(self) -> None:
         from torm.errors import ConfigError
 
-        if not self.data.shards.get(self.train.val_split, 0):
+        if self.train.val_split != "val" and not self.data.shards.get(self.train.val_split, 0):
             raise ConfigError(f"train.val_split {self.train.val_split!r} has no shards in data.shards "
                               f"{dict(self.data.shards)}; add data.shards.{self.train.val_split} or select on 'val'")
 
