@@ -24,7 +24,7 @@ DATA = Path(__file__).parent / "data"
 #: render of the first renderer version, 320x192 window; the boundary-only model before it: 0.845, the one before
 #: that: 0.838); the bound leaves room for onnxruntime differences across versions
 MIN_SHIPPED_IOU = 0.75
-#: every object of that view: the first centre-head model's (learned_seg_centre1.onnx) worst best-match IoU there is 0.61
+#: every object of that view: the first centre-head model's (learned_seg_centre1.onnx) worst IoU there is 0.61
 MIN_SHIPPED_OBJECT_IOU = 0.55
 
 
