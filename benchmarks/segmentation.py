@@ -68,6 +68,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--test-scenes", type=int, default=None,
                    help="--learned: scenes per test shard (default: the model's recipe; the first N of its scenes)")
     p.add_argument("--test-shards", type=int, default=None, help="--learned: shards per test split (default: recipe)")
+    p.add_argument("--fixture-shards", type=int, default=None,
+                   help="--learned: shards of test_fixtures (glassware in a tube rack or a tray; default: recipe)")
     p.add_argument("--views", type=int, default=50)
     p.add_argument("--scale", type=float, default=0.5, help="image scale of 1280x720 (0.5 -> 640x360)")
     p.add_argument("--grid", type=int, default=48)
@@ -293,7 +295,7 @@ def run_learned(a: argparse.Namespace) -> int:
     import json
 
     from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
-    from torm.segmentation.training.dataset import DataRecipe, generate, load_split
+    from torm.segmentation.training.dataset import DataRecipe, generate, load_split, stored_recipe
     from torm.segmentation.training.evaluate import evaluate
 
     seg = LearnedSegmenter(LearnedConfig(model=a.model, threads=a.threads))
@@ -305,15 +307,21 @@ def run_learned(a: argparse.Namespace) -> int:
     over: dict[str, Any] = {"renderer": a.renderer}
     if a.renderer == "pbr":
         over["spp"] = a.spp
+    over["shards"] = dict(card["data"].get("shards", {}))
     if a.test_shards:
-        over["shards"] = {"test_layouts": a.test_shards, "test_shapes": a.test_shards}
+        over["shards"].update(test_layouts=a.test_shards, test_shapes=a.test_shards)
+    if a.fixture_shards is not None:
+        over["shards"]["test_fixtures"] = a.fixture_shards
     if a.test_scenes:
         over["scenes_per_shard"] = a.test_scenes
     recipe = from_dict(DataRecipe, dict(card["data"], **over), where="model card data recipe")
-    # the model's own recipe: its test splits sit beside its training data
-    same = json.loads(json.dumps(recipe.to_dict())) == card["data"]
+    # the model's own recipe (shard counts aside: shard i does not depend on them): its test splits sit beside its
+    # training data
+    same = ({k: v for k, v in stored_recipe(recipe.to_dict()).items() if k != "shards"}
+            == {k: v for k, v in stored_recipe(card["data"]).items() if k != "shards"})
     data_dir = a.data or bc.ROOT / "runs" / "seg_data" / (a.renderer if same else f"{a.renderer}_test")
-    generate(recipe, data_dir, splits=("test_layouts", "test_shapes"))
+    splits = ("test_layouts", "test_shapes") + (("test_fixtures",) if recipe.shards.get("test_fixtures") else ())
+    generate(recipe, data_dir, splits=splits)
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc: dict[str, Any] = {"context": bc.context(args), "segmenter": "learned", "model": seg.config.model_path.name,
                            "renderer": a.renderer, "test_recipe": recipe.to_dict(), "model_card": {k: card[k] for k in (
@@ -321,7 +329,7 @@ def run_learned(a: argparse.Namespace) -> int:
                            "postprocess": dict(seg.postprocess), "splits": {}, "match_iou": 0.5,
                            "min_visible_px": 100}
     t_total, n_total = 0.0, 0
-    for split in ("test_layouts", "test_shapes"):
+    for split in splits:
         data = load_split(data_dir, split)
         t = time.perf_counter()
         doc["splits"][split] = evaluate(lambda im: seg.segment_image(im)[0], data, tuple(card["held_out_shapes"]))

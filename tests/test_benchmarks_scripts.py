@@ -146,3 +146,18 @@ def test_seg_miss_causes_quick_classifies_every_object_and_sweeps_the_neck_split
     assert {r["core_split_px"] for r in sweep} == {0.0, 2.0} and len(sweep) == 6
     assert doc["val_split"] == "val" and {r["split"] for r in sweep} == {"val", "test_layouts", "test_shapes"}
     assert doc["neck_split_chosen_on_val"] in (0.0, 2.0)
+
+
+def test_learned_segmentation_benchmark_reports_the_fixture_split(tmp_path: Path) -> None:
+    """``segmentation.py --learned --fixture-shards N`` renders and scores ``test_fixtures`` beside the two test splits
+    (tiny MuJoCo-rendered shards of one scene each)."""
+    env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "segmentation.py"), "--learned", "--renderer", "mujoco",
+           "--test-shards", "1", "--test-scenes", "1", "--fixture-shards", "1", "--data", str(tmp_path / "data"),
+           "--out", str(tmp_path / "out"), "--threads", "1"]
+    res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    doc = json.loads((tmp_path / "out" / "segmentation_learned_mujoco.json").read_text())
+    assert list(doc["splits"]) == ["test_layouts", "test_shapes", "test_fixtures"]
+    assert doc["test_recipe"]["shards"]["test_fixtures"] == 1 and doc["splits"]["test_fixtures"]["views"] == 12
+    assert "| test_fixtures |" in (tmp_path / "out" / "segmentation_learned_mujoco.md").read_text()

@@ -10,6 +10,7 @@ from torm.errors import ReconstructionError
 from torm.metrics import (
     chamfer_distance_mm,
     depth_metrics,
+    match_clouds_to_meshes,
     match_meshes,
     match_objects,
     mesh_centroid,
@@ -110,3 +111,32 @@ def test_match_objects_and_centroids():
     r = match_objects(np.array([[0, 0, 0], [0.001, 0, 0]]), np.array([[0, 0, 0]]), max_dist=0.01)
     assert r["n_found"] == 1 and r["n_spurious"] == 1
     assert match_objects(np.zeros((0, 3)), np.zeros((2, 3)))["n_found"] == 0
+
+
+def test_match_clouds_to_meshes_holds_a_partly_seen_tube():
+    """A rack hides the lower 60 mm of three 16 mm tubes 35 mm apart (as in the lab suite): each visible top lies
+    on its own tube's surface and matches it although its centroid sits 30 mm above the tube's (the centroid rule
+    at 20 mm misses them all); a cloud off every surface and an empty cloud match nothing; a second cloud on one
+    tube, with fewer points on it, is the spurious one."""
+    tube = trimesh.creation.cylinder(radius=0.008, height=0.16, sections=32)
+    gt = [_tm(tube, [0.6, y, 0.08]) for y in (-0.035, 0.0, 0.035)]
+    rng = np.random.default_rng(0)
+    ang = rng.uniform(0, 2 * np.pi, 500)
+
+    def top(y, off=0.0):  # visible part of the wall, z 0.06..0.16, ``off`` m outside it
+        r = 0.008 + off
+        return np.stack([0.6 + r * np.cos(ang), y + r * np.sin(ang), rng.uniform(0.06, 0.16, 500)], 1)
+
+    half_off = np.concatenate([top(0.0)[:250], top(0.0, off=0.02)[:250]])
+    clouds = [top(0.035), top(-0.035, off=0.004), top(0.0), np.array([[0.9, 0.3, 0.05]]), np.zeros((0, 3)), half_off]
+    r = match_clouds_to_meshes(clouds, gt)
+    assert sorted(r["pairs"]) == [(0, 2), (1, 0), (2, 1)]
+    assert r["n_found"] == 3 and r["n_spurious"] == 3
+    assert all(f == pytest.approx(1.0) for f in r["fractions"])
+    assert match_objects(np.array([c.mean(0) for c in clouds[:3]]), np.array([mesh_centroid(g) for g in gt]),
+                         max_dist=0.02)["n_found"] == 0
+    # 4 mm outside its tube: inside a 10 mm tolerance, outside a 2 mm one
+    assert (1, 0) not in match_clouds_to_meshes(clouds, gt, tol=0.002)["pairs"]
+    with pytest.raises(ReconstructionError, match="tol > 0"):
+        match_clouds_to_meshes(clouds, gt, tol=0.0)
+    assert match_clouds_to_meshes([], gt)["n_found"] == 0 and match_clouds_to_meshes(clouds, [])["n_spurious"] == 6

@@ -152,3 +152,26 @@ def test_every_lab_and_hard_scene_builds_rests_and_steps_without_warnings(name):
     w = build_world(name, seed=0, robot=None)
     stats = check_world(w, seconds=1.0, max_move=0.005)  # raises on MuJoCo warnings or > 5 mm motion
     assert stats["max_move_m"] < 0.005 and all(wn.number == 0 for wn in w.data.warning)
+
+
+def test_tubes_in_a_rack_are_reconstructed_and_matched_to_their_tubes():
+    """The rack hides each tube's lower 60 mm, so TORM-fast (GT masks) reconstructs the tops only; the harness must
+    still match every top to its own tube (surface overlap; the old centroid rule matched none of them and every
+    tube was reported ``not_reconstructed``)."""
+    from torm.perception import label_by_ground_truth, perceive_torm
+    from torm.pipeline import TrialConfig, _capture, _segmenter, make_backend
+
+    cfg = TrialConfig(scenario="lab4", seed=1)
+    backend = make_backend(cfg)
+    try:
+        capture, _ = _capture(cfg, backend)
+        per = perceive_torm(capture, _segmenter(cfg), cfg.reconstruction)
+        truth = backend.ground_truth.object_meshes()
+        clouds, m = label_by_ground_truth(per.point_clouds, truth)
+    finally:
+        backend.close()
+    assert m["n_found"] == 4 and m["n_spurious"] == 0
+    for c in clouds:  # each cloud is a tube's top: above the rack's top plate (56-60 mm), on its own tube
+        assert c.points_nx3[:, 2].min() > 0.045
+        axis_xy = truth[c.object_index].verts_vx3[:, :2].mean(axis=0)
+        assert np.linalg.norm(c.points_nx3[:, :2].mean(axis=0) - axis_xy) < 0.005

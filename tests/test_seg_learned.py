@@ -12,7 +12,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper
 
-from torm.errors import CaptureError, ConfigError, ModelFileError
+from torm.errors import CaptureError, ConfigError, ModelFileError, SceneError
 from torm.segmentation import SEGMENTERS, make_segmenter
 from torm.segmentation.instances import extract_instances
 from torm.segmentation.learned import DEFAULT_MODEL, LearnedConfig, LearnedSegmenter, foreground_mask
@@ -50,19 +50,18 @@ def test_shipped_model_segments_the_committed_render():
     ids = set(np.unique(res.masks_vxhxw)) - {0}
     assert ids == set(range(1, len(ids) + 1))  # per-view ids 1..N
     assert [d.instance_id for d in res.detections[0]] == sorted(ids)
-    # the first centre-head model (shipped beside it as the fine-tuning start) finds every object of the view as
-    # its own instance (best-match IoU 0.61 / 0.98 / 0.74 / 0.93; the boundary-only model before it merged two
-    # touching objects: 0.33 and 0.50). The shipped model (better on val_rig and on 47 test scenes) merges the box
-    # with the glass in front of it in this one view: 0.27 / 0.97 / 0.42 / 0.94.
+    # the shipped model (v3) finds every object of the view as its own instance (best-match IoU 0.71 / 0.86 / 0.75 /
+    # 0.95), as the first centre-head model did (0.61 / 0.98 / 0.74 / 0.93; the boundary-only model before it merged
+    # two touching objects: 0.33 and 0.50); v2 between them merged the box with the glass in front of it here
+    # (0.27 / 0.97 / 0.42 / 0.94)
     def best_ious(m: np.ndarray) -> list[float]:
         return [max(np.count_nonzero((m == p) & (gt == g)) / np.count_nonzero((m == p) | (gt == g))
                     for p in np.unique(m[m > 0])) for g in np.unique(gt[gt > 0])]
 
+    assert min(best_ious(res.masks_vxhxw[0])) >= MIN_SHIPPED_OBJECT_IOU
     first = make_segmenter("learned", {"threads": 1, "input_width": 0,
                                        "model": str(DEFAULT_MODEL.with_name("learned_seg_centre1.onnx"))})
     assert min(best_ious(first.segment_image(rgb)[0])) >= MIN_SHIPPED_OBJECT_IOU
-    best = best_ious(res.masks_vxhxw[0])
-    assert min(best) >= 0.25 and sorted(best)[-2] >= 0.9, best
     # a blank table-coloured image has (almost) no foreground
     blank = np.full_like(rgb, np.median(rgb.reshape(-1, 3), axis=0).astype(np.uint8))
     assert (seg.segment_image(blank)[0] > 0).mean() < 0.01
@@ -306,6 +305,58 @@ def test_library_and_rig_splits_and_recipes_that_only_add_shards(tmp_path):
         TrainConfig(val_split="test_layouts")
     with pytest.raises(ConfigError, match="no shards"):
         SegTrainingSpec(data=DataRecipe(shards={"train": 1, "val": 1}), train=TrainConfig(val_split="val_rig"))
+
+
+def test_fixture_splits_stand_tubes_in_racks_and_glass_in_trays(tmp_path):
+    """The fixture splits draw a tube rack holding 1-5 test tubes (never free: a free tube rolls onto its side and is
+    rejected) or a tray holding some library objects; their scenes build with the fixture and the tubes stand
+    upright; ``training_data`` appends ``train_fixtures``. A folder written before a recipe field existed counts it
+    at its default."""
+    import json
+
+    from sim.scenes.scenario import Scenario
+    from sim.world import build_world
+    from torm.segmentation.training.dataset import (
+        RACK_SLOTS,
+        DataRecipe,
+        generate,
+        load_split,
+        sample_fixture_scene,
+        stored_recipe,
+    )
+    from torm.segmentation.training.run import training_data
+    from torm.segmentation.training.shapes import train_library_objects
+
+    recipe = DataRecipe(n_procedural=6)
+    rng = np.random.default_rng(0)
+    draws = [sample_fixture_scene(recipe, rng) for _ in range(200)]
+    assert {f for _, f, _ in draws} == {"tube_rack", "tray"}
+    for objs, fixture, n_in in draws:
+        assert set(objs) <= set(train_library_objects()) and 1 <= n_in <= len(objs)
+        tubes = [o.startswith("test_tube") for o in objs]
+        if fixture == "tube_rack":  # the tubes first, all of them in the rack
+            assert n_in <= RACK_SLOTS and all(tubes[:n_in]) and not any(tubes[n_in:])
+        else:
+            assert not any(tubes)
+    with pytest.raises(SceneError, match="tilted"):  # a free tube rolls onto its side
+        build_world(Scenario(name="d", objects=("test_tube_12x100",)), 3, robot=None)
+    objs, fixture, n_in = next(d for d in draws if d[1] == "tube_rack" and d[2] >= 2)
+    world = build_world(Scenario(name="r", objects=objs, spacing="dense", fixture=fixture, fixture_objects=n_in), 3,
+                        robot=None)
+    assert world.fixture is not None and world.fixture.name == "tube_rack"
+    for inst in range(1, n_in + 1):  # the tubes stand: their axis within 6 deg of z
+        assert world.object_pose(inst)[2, 2] > np.cos(np.deg2rad(6.0))
+    small = dict(renderer="mujoco", width=64, height=48, full_width=128, full_height=72, n_procedural=6,
+                 objects_per_scene=(1, 3), views_per_scene=2, scenes_per_shard=2, test_views=3)
+    r = DataRecipe(**small, shards={"train": 1, "train_fixtures": 1, "test_fixtures": 1})
+    generate(r, tmp_path / "d", progress=False)
+    tf = load_split(tmp_path / "d", "test_fixtures")
+    assert tf["rgb"].shape == (6, 72, 128, 3) and all(m["fixture"] in ("tube_rack", "tray") for m in tf["meta"])
+    data = training_data(r, tmp_path / "d")
+    assert len(data["meta"]) == 4 and [m["fixture"] for m in data["meta"]][:2] == [None, None]
+    assert list(data["scene"]) == [0, 0, 1, 1, 2, 2, 3, 3]  # 2 views a scene, fixture scenes after train
+    old = {k: v for k, v in json.loads(json.dumps(DataRecipe().to_dict())).items() if k != "seed"}
+    assert stored_recipe(old) == stored_recipe(DataRecipe().to_dict())
 
 
 def _asymmetric_onnx(path: Path) -> Path:

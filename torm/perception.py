@@ -178,19 +178,20 @@ def oracle_point_clouds(meshes_by_id: dict[int, TriMesh], n_points: int, rng: np
     return clouds, meshes
 
 
-def label_by_ground_truth(point_clouds: list[ObjectPointCloud], gt_centroids: dict[int, np.ndarray],
-                          max_dist: float = 0.04) -> tuple[list[ObjectPointCloud], dict[str, Any]]:
-    """Relabel reconstructed clouds with the ground-truth instance id of the nearest object centroid.
+def label_by_ground_truth(point_clouds: list[ObjectPointCloud], gt_meshes: dict[int, TriMesh], tol: float = 0.01,
+                          min_fraction: float = 0.5) -> tuple[list[ObjectPointCloud], dict[str, Any]]:
+    """Relabel reconstructed clouds with the ground-truth instance id of the object whose surface they lie on.
 
-    Evaluation only (it uses privileged simulator state). Unmatched clouds get ``1000 + k``.
-    Returns the relabelled clouds and the matching summary of :func:`torm.metrics.match_objects`.
+    Evaluation only (it uses privileged simulator state). A cloud matches the GT object (one-to-one, Hungarian)
+    with the largest fraction of its points within ``tol`` m of that object's surface, if that fraction is at least
+    ``min_fraction`` (:func:`torm.metrics.match_clouds_to_meshes`): a partly seen object (a tube in a rack) still
+    matches. Unmatched clouds get ``1000 + k``. Returns the relabelled clouds and the matching summary.
     """
-    from torm.metrics import match_objects
+    from torm.metrics import match_clouds_to_meshes
 
-    ids = sorted(gt_centroids)
-    pred = np.array([c.points_nx3.mean(axis=0) for c in point_clouds]).reshape(-1, 3)
-    gt = np.array([gt_centroids[i] for i in ids]).reshape(-1, 3)
-    m = match_objects(pred, gt, max_dist=max_dist)
+    ids = sorted(gt_meshes)
+    m = match_clouds_to_meshes([c.points_nx3 for c in point_clouds], [gt_meshes[i] for i in ids], tol=tol,
+                               min_fraction=min_fraction)
     label = {int(p): ids[int(g)] for p, g in m["pairs"]}
     out = [ObjectPointCloud(c.points_nx3, c.normals_nx3, label.get(k, 1000 + k)) for k, c in enumerate(point_clouds)]
     return out, m

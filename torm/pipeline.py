@@ -345,8 +345,7 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
         timings["segmentation"] = timings.get("segmentation", 0.0) + per.info["segmentation_s"]
         timings["reconstruction"] = timings.get("reconstruction", 0.0) + per.info["reconstruction_s"]
         if gt is not None:
-            cents = {k: m.verts_vx3.mean(axis=0) for k, m in gt.object_meshes().items()}
-            per.point_clouds, per.info["matching"] = label_by_ground_truth(per.point_clouds, cents)
+            per.point_clouds, per.info["matching"] = label_by_ground_truth(per.point_clouds, gt.object_meshes())
     elif config.method == "depth":
         per = Perception(depth_point_clouds(capture, 0, n_points, rng), [], {"view": cap_info["depth_view"]})
         per.meshes = [None] * len(per.point_clouds)
@@ -545,7 +544,9 @@ def _not_reconstructed_reason(per: Perception, gt: Any, object_id: int, max_dist
     the views whose silhouettes hold regions no reconstructed object explains."""
     rejected = per.info.get("rejected_objects") or []
     if gt is not None and rejected:
-        c = gt.object_meshes()[object_id].verts_vx3.mean(axis=0)
+        from torm.metrics import mesh_centroid
+
+        c = mesh_centroid(gt.object_meshes()[object_id])
         near = [r for r in rejected if np.linalg.norm(np.asarray(r["centroid"]) - c) < max_dist]
         if near:
             return f"rejected by the reconstruction: {near[0]['reason']}"

@@ -247,8 +247,7 @@ class TormGraspSelectEnv(gym.Env):
 
         seg_opts = {"seed": int(rng.integers(2**31 - 1))} if cfg.segmenter == "noisy" else None
         per = perceive_torm(capture, make_segmenter(cfg.segmenter, seg_opts), ReconstructionConfig())
-        cents = {k: m.verts_vx3.mean(axis=0) for k, m in truth.items()}
-        clouds, matching = label_by_ground_truth(per.point_clouds, cents)
+        clouds, matching = label_by_ground_truth(per.point_clouds, truth)
         return clouds, list(per.meshes), {"matching": matching, **per.info}
 
     # ------------------------------------------------------------------------------------------ gym API
@@ -299,7 +298,9 @@ class TormGraspSelectEnv(gym.Env):
         cloud, self._grasps = by_id.get(target, (None, []))
         self._grasps = list(self._grasps)[: cfg.top_k]
         if cloud is None:  # the target was not perceived: observe its true centroid only
-            c = self._true_meshes()[target].verts_vx3.mean(axis=0)
+            from torm.metrics import mesh_centroid
+
+            c = mesh_centroid(self._true_meshes()[target])
             pts = np.tile(c, (cfg.object_points, 1))
         else:
             pts = cloud.points_nx3

@@ -20,7 +20,16 @@ lets the objects settle and rejects layouts that tip, slide or interpenetrate. O
                       instead of ``val`` (random windows, half procedural shapes);
 ``test_layouts``      library shapes seen in training only, new layouts (seeds disjoint from train/val), the
                       capture rig's own Fibonacci layout (``test_views`` full 640x360 views, radius 0.5 m, 20-80 deg);
-``test_shapes``       every scene holds at least one held-out shape (plus seen library shapes), same cameras.
+``test_shapes``       every scene holds at least one held-out shape (plus seen library shapes), same cameras;
+``train_fixtures``    optional: library shapes standing in the lab suite's opaque fixtures, windows like ``train``; half
+                      the scenes a ``tube_rack`` with 1-5 test tubes (and 0-3 objects on the table beside it), half a
+                      ``tray`` holding some of its objects; used for training together with ``train``;
+``test_fixtures``     optional: the same draw in the rig's full frames, own seeds (a held-out measure).
+
+Test tubes: a free ``test_tube_*`` never settles upright (it rolls onto its side, a ~28 deg tilt the placement
+rejects), so in every split but the fixture splits a scene drawing one is redrawn and holds no tube. The fixture
+splits are where tubes, racks and trays (which the lab suite uses) enter the data; every other split is unchanged
+by them.
 
 Shard ``i`` of a split does not depend on the shard counts (``shards``), so a recipe that only asks for more shards
 (or new splits) reuses the shards already rendered under the same folder.
@@ -47,12 +56,19 @@ from torm.geometry import look_at_cv
 
 log = logging.getLogger(__name__)
 
-SPLITS = ("train", "train_library", "val", "val_rig", "test_layouts", "test_shapes")
+SPLITS = ("train", "train_library", "train_fixtures", "val", "val_rig", "test_layouts", "test_shapes", "test_fixtures")
 #: splits rendered as the rig's full frames (the others: windows of random cameras)
-RIG_SPLITS = ("val_rig", "test_layouts", "test_shapes")
+RIG_SPLITS = ("val_rig", "test_layouts", "test_shapes", "test_fixtures")
 #: splits whose scenes hold library shapes only
-LIBRARY_SPLITS = ("train_library", "val_rig", "test_layouts")
-_SPLIT_SALT = {"train": 1, "val": 2, "test_layouts": 3, "test_shapes": 4, "train_library": 5, "val_rig": 6}
+LIBRARY_SPLITS = ("train_library", "val_rig", "test_layouts", "train_fixtures", "test_fixtures")
+#: splits whose scenes stand objects in a fixture (a tube rack or a tray)
+FIXTURE_SPLITS = ("train_fixtures", "test_fixtures")
+#: extra training splits appended to ``train`` when the recipe renders them
+EXTRA_TRAIN_SPLITS = ("train_library", "train_fixtures")
+_SPLIT_SALT = {"train": 1, "val": 2, "test_layouts": 3, "test_shapes": 4, "train_library": 5, "val_rig": 6,
+               "train_fixtures": 7, "test_fixtures": 8}
+#: the tube rack's slots (``sim.scenes.fixtures``)
+RACK_SLOTS = 5
 
 
 @dataclass(frozen=True)
@@ -128,6 +144,12 @@ class DataRecipe:
         return dataclasses.asdict(self)
 
 
+def stored_recipe(d: dict[str, Any]) -> dict[str, Any]:
+    """A recipe dict as stored (JSON types), with the fields it lacks at their defaults: a folder or model card written
+    before a field existed was made with its default."""
+    return json.loads(json.dumps({**DataRecipe().to_dict(), **d}))
+
+
 def random_poses(n: int, recipe: DataRecipe, rng: np.random.Generator) -> np.ndarray:
     """(n, 4, 4) OpenCV camera-to-world poses on the recipe's band, looking at the jittered workspace centre."""
     out = np.empty((n, 4, 4))
@@ -171,6 +193,23 @@ def sample_objects(split: str, recipe: DataRecipe, rng: np.random.Generator) -> 
     return tuple(objs)
 
 
+def sample_fixture_scene(recipe: DataRecipe, rng: np.random.Generator) -> tuple[tuple[str, ...], str, int]:
+    """(objects, fixture, how many of the first objects stand in it) of one fixture-split scene: with probability
+    1/2 a ``tube_rack`` holding 1-5 test tubes with 0-3 other library objects on the table, else a ``tray`` holding
+    1..n of its n library objects (no tubes; n drawn from ``objects_per_scene``)."""
+    lib, _, _ = _pools(recipe)
+    tubes = [o for o in lib if o.startswith("test_tube")]
+    others = [o for o in lib if not o.startswith("test_tube")]
+    if tubes and rng.random() < 0.5:
+        n_t = int(rng.integers(1, RACK_SLOTS + 1))
+        n_rest = int(rng.integers(0, 4))
+        objs = [str(rng.choice(tubes)) for _ in range(n_t)] + [str(rng.choice(others)) for _ in range(n_rest)]
+        return tuple(objs), "tube_rack", n_t
+    n = int(rng.integers(recipe.objects_per_scene[0], recipe.objects_per_scene[1] + 1))
+    objs = [str(rng.choice(others)) for _ in range(n)]
+    return tuple(objs), "tray", int(rng.integers(1, n + 1))
+
+
 def scene_seed(recipe: DataRecipe, split: str, shard: int, j: int) -> int:
     return int(recipe.seed * 10_000_000 + _SPLIT_SALT[split] * 1_000_000 + shard * 1000 + j)
 
@@ -196,11 +235,15 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
         rng = np.random.default_rng(seed)
         world = None
         for _attempt in range(5):
-            objs = sample_objects(split, recipe, rng)
+            fixture, n_fix = None, 0
+            if split in FIXTURE_SPLITS:
+                objs, fixture, n_fix = sample_fixture_scene(recipe, rng)
+            else:
+                objs = sample_objects(split, recipe, rng)
             spacing = "dense" if rng.random() < recipe.dense_fraction else "moderate"
             try:
-                world = build_world(Scenario(name=f"{split}_{shard}_{j}", objects=objs, spacing=spacing), seed,
-                                    robot=None)
+                world = build_world(Scenario(name=f"{split}_{shard}_{j}", objects=objs, spacing=spacing,
+                                             fixture=fixture, fixture_objects=n_fix), seed, robot=None)
                 break
             except SceneError as exc:
                 log.info("scene %d/%d/%d rejected (%s); drawing another object set", shard, j, _attempt, exc)
@@ -221,7 +264,7 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
         poses.append(Ts)
         Ks.append(K_v)
         scene_idx += [len(meta)] * len(Ts)
-        meta.append({"seed": seed, "objects": list(objs), "spacing": spacing,
+        meta.append({"seed": seed, "objects": list(objs), "spacing": spacing, "fixture": fixture,
                      "materials": ["glass" if o.transparent else "opaque" for o in world.objects]})
     tmp = path.with_suffix(".tmp.npz")
     np.savez_compressed(tmp, rgb=np.concatenate(rgbs), mask=np.concatenate(masks), T_world_cam=np.concatenate(poses),
@@ -254,7 +297,7 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
     rec_path = root / "recipe.json"
     mine = json.loads(json.dumps(recipe.to_dict()))  # tuples as lists, as stored
     if rec_path.exists():  # shard contents do not depend on the shard counts: compare everything else
-        theirs = json.loads(rec_path.read_text())
+        theirs = stored_recipe(json.loads(rec_path.read_text()))
         if {k: v for k, v in theirs.items() if k != "shards"} != {k: v for k, v in mine.items() if k != "shards"}:
             raise ConfigError(f"{root} holds shards of another data recipe ({rec_path}); use another folder or "
                               "delete it")

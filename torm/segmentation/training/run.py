@@ -46,27 +46,33 @@ class SegTrainingSpec:
 
 
 def training_data(recipe: DataRecipe, data_dir: Path) -> dict[str, Any]:
-    """The ``train`` split, with the ``train_library`` split appended when the recipe asks for it (rgb, mask and
-    meta; scene indices of the appended views shifted past ``train``'s)."""
+    """The ``train`` split, with the extra training splits (``train_library``, ``train_fixtures``) appended when the
+    recipe asks for them (rgb, mask and meta; scene indices of appended views shifted past the earlier ones')."""
     import numpy as np
 
-    tr = load_split(data_dir, "train")
-    if not recipe.shards.get("train_library", 0):
-        return tr
-    lib = load_split(data_dir, "train_library")
-    return {"rgb": np.concatenate([tr["rgb"], lib["rgb"]]), "mask": np.concatenate([tr["mask"], lib["mask"]]),
-            "scene": np.concatenate([tr["scene"], lib["scene"] + len(tr["meta"])]), "meta": tr["meta"] + lib["meta"]}
+    from torm.segmentation.training.dataset import EXTRA_TRAIN_SPLITS
+
+    parts = [load_split(data_dir, "train")]
+    parts += [load_split(data_dir, s) for s in EXTRA_TRAIN_SPLITS if recipe.shards.get(s, 0)]
+    if len(parts) == 1:
+        return parts[0]
+    offsets = np.cumsum([0] + [len(p["meta"]) for p in parts[:-1]])
+    return {"rgb": np.concatenate([p["rgb"] for p in parts]), "mask": np.concatenate([p["mask"] for p in parts]),
+            "scene": np.concatenate([p["scene"] + o for p, o in zip(parts, offsets, strict=True)]),
+            "meta": [m for p in parts for m in p["meta"]]}
 
 
 def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[str, Any]:
-    """Held-out metrics of the ONNX model on ``test_layouts`` and ``test_shapes`` (what the card reports)."""
+    """Held-out metrics of the ONNX model on ``test_layouts``, ``test_shapes`` and, when rendered, ``test_fixtures``."""
     from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
     from torm.segmentation.training.evaluate import evaluate
     from torm.segmentation.training.shapes import HELD_OUT_SHAPES
 
     seg = LearnedSegmenter(LearnedConfig(model=str(onnx_path), threads=threads))
     out: dict[str, Any] = {}
-    for split in ("test_layouts", "test_shapes"):
+    for split in ("test_layouts", "test_shapes", "test_fixtures"):
+        if split == "test_fixtures" and not (Path(data_dir) / split).is_dir():
+            continue  # optional split, not rendered by this recipe
         try:
             data = load_split(data_dir, split)
         except Exception as exc:  # a split that was not generated is reported, not fatal
