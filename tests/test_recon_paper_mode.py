@@ -127,10 +127,12 @@ def test_band_structure_on_a_plane():
     assert build_band(tets, torch.ones_like(s), grid.grid_shape, 2).n_verts == 0  # no surface, no band
 
 
-def test_band_gives_the_full_mesh_and_the_same_gradients(scene):
+@pytest.mark.parametrize("band_bf16", ["on", "off"])
+def test_band_gives_the_full_mesh_and_the_same_gradients(scene, band_bf16):
+    """The band (in float32, or with its rows away from the surface in bfloat16) gives the full evaluation's mesh."""
     _, masks, K, T = scene
     grid = build_tet_grid(BOUNDS, 20)
-    cfg = DMTetConfig(param="mlp", mlp_hidden=64, mlp_fit_iters=300, mlp_fit_lr=3e-3, band_rings=1)
+    cfg = DMTetConfig(param="mlp", mlp_hidden=64, mlp_fit_iters=300, mlp_fit_lr=3e-3, band_rings=1, band_bf16=band_bf16)
     fixed = torch.zeros(grid.n_verts, dtype=torch.bool)
     fld = _Field(grid, _two_spheres_cells(grid), fixed, cfg, torch.Generator().manual_seed(0))
 
@@ -154,6 +156,13 @@ def test_band_gives_the_full_mesh_and_the_same_gradients(scene):
     assert surf.band.n_verts < 0.5 * grid.n_verts  # the band really is narrow here
     assert torch.equal(mf_b, mf_ref)
     assert torch.allclose(mv_b, mv_ref, atol=1e-6)
+    if band_bf16 == "on":  # the first step has no crossing set yet: every row went through bfloat16 first
+        assert surf.stats["bf16_rows"] == surf.band.n_verts and surf.stats["bf16_late_rows"] > 0
+        assert surf.stats["bf16_err_max"] < 0.5 * cfg.bf16_sign_margin  # measured on the rows seen both ways
+        s_b2, _, mv_b2, mf_b2 = surf.extract(1)  # the next step starts from the crossing set in float32
+        assert torch.equal(mf_b2, mf_ref) and torch.equal(mv_b2, mv_b)
+        assert surf.stats["bf16_rows"] < 2 * surf.band.n_verts
+        s_b, verts_b, mv_b, mf_b = surf.extract(2)
     l_b, g_b = loss_and_grads(mv_b, mf_b, s_b, verts_b, surf)
     assert 0 < surf.stats["backprop_verts"] < surf.stats["grad_verts"]  # only the silhouettes' vertices
     assert l_b == pytest.approx(l_ref, rel=1e-5)
@@ -161,8 +170,8 @@ def test_band_gives_the_full_mesh_and_the_same_gradients(scene):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
 
 
-@pytest.mark.parametrize("split_rows", [2, 10**9])
-def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows):
+@pytest.mark.parametrize(("split_rows", "band_bf16"), [(2, "off"), (10**9, "off"), (2, "on")])
+def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows, band_bf16):
     """The band (with its gradient pass in two halves from ``split_rows`` rows up) follows the full evaluation."""
     import torm.reconstruction.dmtet as dm
 
@@ -170,7 +179,7 @@ def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows):
     _, masks, K, T = scene
     grid = build_tet_grid(BOUNDS, 16)
     cfg = DMTetConfig(param="mlp", iterations=12, views_per_batch=2, eval_every=6, mlp_hidden=32, mlp_fit_iters=60,
-                      mlp_fit_lr=3e-3, full_pass_every=4)
+                      mlp_fit_lr=3e-3, full_pass_every=4, band_bf16=band_bf16)
     ref = optimise_dmtet(grid, K, T, masks, replace(cfg, narrow_band=False), table_z=0.0)
     fast = optimise_dmtet(grid, K, T, masks, cfg, table_z=0.0)
     assert fast.history["full_passes"][0] >= 3 and ref.history["full_passes"] == [0.0]
@@ -237,6 +246,15 @@ def test_split_evaluation_keeps_grad_mode_and_autocast():
     assert torch.equal(got32, ref32) and torch.equal(got16, ref16)
     assert got32.dtype == torch.float32 and not got32.requires_grad
     assert got16.dtype == torch.bfloat16
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):  # pre-cast weights: autocast's values
+        assert torch.equal(got16, fld.mlp.net(fld.pe))
+    # a mixed evaluation (float32 rows, bfloat16 rows padded to BF16_ROW_STEP) gives each row its own value
+    a, b = torch.arange(0, 3 * MLP_CHUNK, 3), torch.arange(1, grid.n_verts, 3)
+    with torch.no_grad():
+        m32, m16 = fld._mlp_rows_mixed(a, b)
+    assert torch.equal(m32, ref32[a]) and torch.equal(m16, ref16[b].float())
+    with pytest.raises(RuntimeError, match="gradient-free"):
+        fld._mlp_rows(a, bf16=True)
     with_grad = fld._mlp_rows(torch.arange(3 * MLP_CHUNK))  # with gradients: one thread, a graph
     assert with_grad.requires_grad
 

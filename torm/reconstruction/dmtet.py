@@ -35,6 +35,7 @@ from typing import Literal
 import cv2
 import numpy as np
 import torch
+from torch import nn
 
 from torm.errors import ConfigError
 from torm.reconstruction import losses
@@ -52,6 +53,8 @@ log = logging.getLogger(__name__)
 _PARAMS = ("mlp", "vertex")
 #: rows of the MLP evaluated at a time (see :meth:`_Field._mlp_rows`)
 MLP_CHUNK = 1024
+#: rows of a bfloat16 evaluation at a time (1 thread, 128 hidden: 1024 rows 111 us, 2048 rows 176 us per layer)
+BF16_CHUNK = 2048
 #: rows from which the band's gradient pass through the MLP runs in two halves (see ``_Surface._chain``)
 GRAD_SPLIT_ROWS = 512
 _STARTS = ("sphere", "hull")
@@ -133,6 +136,20 @@ class DMTetConfig:
             code; 135 s before the gradient pass was cut in halves, which on one thread cost more: field gradient
             2.8 -> 4.0 ms/step); the final meshes are identical (Chamfer and volume IoU to every digit). Without it
             the views of a batch render on ``threads`` threads.
+        band_bf16: MLP with a band: each step the band's vertices that were not vertices of a crossing tet the step
+            before are evaluated in bfloat16 (weights and encodings cast once, float32 accumulation; 3x the float32
+            rows per second on this 2-core AVX-512-BF16 machine, 1024-row chunks of the 128-wide layers), the
+            others in float32. Only signs are taken from bfloat16 values, and only where ``|s| >=
+            bf16_sign_margin``; closer rows and every vertex of a crossing tet are evaluated in float32, so the
+            mesh, its positions and every gradient are those of the float32 field (a bfloat16 sign is trusted
+            only beyond the margin; the largest bfloat16 error seen on rows evaluated both ways is recorded in
+            ``history["bf16_err_max"]`` and a warning is logged when it comes within half the margin). "auto": on
+            where the CPU has native bfloat16 (emulated bfloat16 is slower than float32); the full passes use the
+            same bfloat16 rows. "on"/"off" force it.
+        bf16_sign_margin: cells; see ``band_bf16``. The largest bfloat16 error measured on syn12's band over a
+            5000-step run was 0.090 cells (``history["bf16_err_max"]``); 0.25 is 2.8 times that. With 0.5, 43 % of
+            the bfloat16 rows were within the margin and evaluated again (field stage 10.0 ms/step vs 8.5 with 0.2
+            on syn12's first 1000 steps; 10.4 with float32 only).
     """
 
     param: Literal["mlp", "vertex"] = "mlp"
@@ -172,6 +189,8 @@ class DMTetConfig:
     threads: int = 1
     fit_threads: int = 0
     side_thread: Literal["auto", "on", "off"] = "auto"
+    band_bf16: Literal["auto", "on", "off"] = "auto"
+    bf16_sign_margin: float = 0.25
 
     def __post_init__(self) -> None:
         if self.threads < 0:
@@ -181,7 +200,7 @@ class DMTetConfig:
                               f"{self.fit_threads}")
         for name, valid in (("param", _PARAMS), ("start", _STARTS), ("loss", _LOSSES),
                             ("lr_schedule", ("exp", "cosine")), ("robust_kind", ("mad", "gm")),
-                            ("side_thread", ("auto", "on", "off"))):
+                            ("side_thread", ("auto", "on", "off")), ("band_bf16", ("auto", "on", "off"))):
             if getattr(self, name) not in valid:
                 raise ConfigError(f"DMTetConfig.{name}={getattr(self, name)!r}; valid choices: {', '.join(valid)}")
         if self.iterations < 0 or self.views_per_batch < 1 or self.mask_res < 8:
@@ -202,6 +221,8 @@ class DMTetConfig:
             raise ConfigError(f"DMTetConfig.init_lr_scale must be in (0, 1], got {self.init_lr_scale}")
         if self.band_rings < 0 or self.full_pass_every < 1 or self.eikonal_points < 0:
             raise ConfigError("DMTetConfig: band_rings >= 0 cells, full_pass_every >= 1 step, eikonal_points >= 0")
+        if not self.bf16_sign_margin > 0:
+            raise ConfigError(f"DMTetConfig.bf16_sign_margin must be > 0 cells, got {self.bf16_sign_margin}")
         if self.mlp_lr <= 0 or self.mlp_fit_lr <= 0:
             raise ConfigError("DMTetConfig: mlp_lr and mlp_fit_lr must be > 0")
         if self.mlp_fit_clamp < 0:
@@ -308,6 +329,7 @@ class _Field:
             self.params = list(self.mlp.parameters())
             with torch.no_grad():
                 self.pe = self.mlp.encode(self.x_norm)  # the grid never moves: its positional encoding is fixed
+            self._pe16: torch.Tensor | None = None
             self._fit(sdf0_cells.float(), gen)
 
     def _fit(self, target_cells: torch.Tensor, gen: torch.Generator) -> None:
@@ -353,16 +375,23 @@ class _Field:
         activations of a chunk stay in the CPU cache (measured, 1 thread, 128 hidden: 31k rows 54 ms in one
         piece, 20 ms in chunks of 1024; 8k rows 7.2 vs 5.6 ms). Rows are independent, so the values are those
         of one call up to float rounding. Without gradients, the side thread (if any) evaluates the second half
-        of the chunks. ``bf16``: under CPU bfloat16 autocast."""
-        n = len(self.pe) if idx is None else len(idx)
-        starts = list(range(0, n, MLP_CHUNK)) or [0]
+        of the chunks. ``bf16``: without gradients only, in bfloat16 (:func:`_net_bf16`, ``BF16_CHUNK`` rows at a
+        time), returned in bfloat16."""
         grad = torch.is_grad_enabled()
+        if bf16 and grad:
+            raise RuntimeError("_Field._mlp_rows: bfloat16 rows are for gradient-free evaluations only")
+        n = len(self.pe) if idx is None else len(idx)
+        chunk = BF16_CHUNK if bf16 else MLP_CHUNK
+        starts = list(range(0, n, chunk)) or [0]
+        layers = self._bf16_layers() if bf16 else []
+        pe = self._pe_bf16() if bf16 else self.pe
 
         def rows(chunk_starts: list[int]) -> list[torch.Tensor]:
-            # grad mode and autocast are thread-local: set them in whichever thread runs this
-            with torch.set_grad_enabled(grad), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-                return [self.mlp.net(self.pe[i:i + MLP_CHUNK] if idx is None else self.pe[idx[i:i + MLP_CHUNK]])
-                        for i in chunk_starts]
+            # grad mode is thread-local: set it in whichever thread runs this
+            with torch.set_grad_enabled(grad):
+                if bf16:
+                    return [_net_bf16_rows(pe, i, chunk, idx, layers) for i in chunk_starts]
+                return [self.mlp.net(pe[i:i + chunk] if idx is None else pe[idx[i:i + chunk]]) for i in chunk_starts]
 
         if self.side is None or grad or len(starts) < 2:
             parts = rows(starts)
@@ -371,6 +400,47 @@ class _Field:
             job = self.side.submit(rows, starts[half:])
             parts = rows(starts[:half]) + job.result()
         return parts[0] if len(parts) == 1 else torch.cat(parts)
+
+    def _mlp_rows_mixed(self, idx32: torch.Tensor, idx16: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Without gradients: the MLP on the vertices ``idx32`` in float32 and on ``idx16`` in bfloat16, both
+        returned as float32 ((n32, 4), (n16, 4)). The side thread (if any) takes the bfloat16 chunks and float32
+        chunks from the end until it holds about half the work (a 2048-row bfloat16 chunk costs about half a
+        1024-row float32 chunk here); which thread runs a chunk does not change its values."""
+        layers, pe16 = self._bf16_layers(), self._pe_bf16()
+        jobs = [(False, i) for i in range(0, len(idx32), MLP_CHUNK)] + [(True, i) for i in range(0, len(idx16),
+                                                                                             BF16_CHUNK)]
+
+        def run(todo: list[tuple[bool, int]]) -> list[torch.Tensor]:
+            with torch.no_grad():
+                return [_net_bf16_rows(pe16, i, BF16_CHUNK, idx16, layers).float() if lo
+                        else self.mlp.net(self.pe[idx32[i:i + MLP_CHUNK]]) for lo, i in todo]
+
+        cost = [0.5 if lo else 1.0 for lo, _ in jobs]
+        split = len(jobs)
+        if self.side is not None and len(jobs) >= 2:
+            side_cost, total = 0.0, sum(cost)
+            while split > 1 and side_cost + cost[split - 1] <= total / 2 + 0.25:
+                split -= 1
+                side_cost += cost[split]
+        job = self.side.submit(run, jobs[split:]) if split < len(jobs) else None
+        parts = run(jobs[:split]) + (job.result() if job is not None else [])
+        n32 = -(-len(idx32) // MLP_CHUNK)
+        width = self.mlp.net[-1].out_features
+        out32 = torch.cat(parts[:n32]) if n32 else torch.zeros((0, width))
+        out16 = torch.cat(parts[n32:]) if len(parts) > n32 else torch.zeros((0, width))
+        return out32, out16
+
+    def _bf16_layers(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(bias, weight transposed) of every linear layer of the MLP in bfloat16, from the current weights."""
+        with torch.no_grad():
+            return [(m.bias.bfloat16(), m.weight.t().contiguous().bfloat16())
+                    for m in self.mlp.net if isinstance(m, nn.Linear)]
+
+    def _pe_bf16(self) -> torch.Tensor:
+        """The grid's positional encoding in bfloat16 (cast once)."""
+        if self._pe16 is None:
+            self._pe16 = self.pe.bfloat16()
+        return self._pe16
 
     def eikonal(self, s_cells: torch.Tensor, verts: torch.Tensor, v0_mx3: torch.Tensor,
                 gen: torch.Generator) -> torch.Tensor:
@@ -390,6 +460,34 @@ class _Field:
         (g,) = torch.autograd.grad(f.sum(), x, create_graph=True)
         g_cells = g * 2.0 / self.ext * self.cell  # d(sdf cells) / d(position in cells)
         return losses.eikonal_loss_grad(g_cells)
+
+
+def _net_bf16(x_nxd: torch.Tensor, layers: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
+    """The MLP (linear layers with ReLU between) on bfloat16 rows ``x_nxd`` (N, D) with bfloat16 ``(bias, weight^T)``
+    layers (:meth:`_Field._bf16_layers`): (N, out) bfloat16, the values CPU autocast gives, without casting the
+    weights per call."""
+    for i, (b, wt) in enumerate(layers):
+        x_nxd = torch.addmm(b, x_nxd, wt)
+        if i < len(layers) - 1:
+            x_nxd = x_nxd.relu_()
+    return x_nxd
+
+
+#: bfloat16 evaluations are padded to a multiple of this many rows: oneDNN compiles a kernel per matrix shape, and a
+#: band whose size changes every step made it compile every step (syn12: the band's field stage slower than float32)
+BF16_ROW_STEP = 256
+
+
+def _net_bf16_rows(pe_nxd: torch.Tensor, start: int, chunk: int, idx: torch.Tensor | None,
+                   layers: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
+    """:func:`_net_bf16` on the rows ``start:start + chunk`` of ``pe_nxd`` (or of ``pe_nxd[idx]``), the row count
+    padded up to a multiple of ``BF16_ROW_STEP`` (with row 0, dropped from the result)."""
+    sel = torch.arange(start, min(start + chunk, len(pe_nxd))) if idx is None else idx[start:start + chunk]
+    m = len(sel)
+    pad = -m % BF16_ROW_STEP
+    if pad:
+        sel = torch.cat([sel, sel.new_zeros(pad)])
+    return _net_bf16(pe_nxd[sel], layers)[:m]
 
 
 def _bf16_supported() -> bool:
@@ -414,7 +512,13 @@ class _Surface:
         self._tets_local = np.zeros((0, 4), dtype=np.int64)
         self._edges_b = np.zeros((0, 6), dtype=np.int64)
         self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
-                      "grad_verts": 0, "backprop_verts": 0}
+                      "grad_verts": 0, "backprop_verts": 0, "bf16_rows": 0, "f32_rows": 0, "bf16_near_rows": 0,
+                      "bf16_late_rows": 0, "bf16_sign_errors": 0, "bf16_err_max": 0.0}
+        # bfloat16 for the band's rows away from the surface (see DMTetConfig.band_bf16)
+        self.mixed = self.banded and (cfg.band_bf16 == "on" or (cfg.band_bf16 == "auto" and _BF16))
+        self._hot_v = torch.zeros(grid.n_verts, dtype=torch.bool)  # crossing tets' vertices at the last step
+        self._prev_hot: torch.Tensor | None = None
+        self._fresh_s: torch.Tensor | None = None  # the bfloat16 full pass of this step, to measure the error
         self._leaves: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         if self.banded:
             self.tet_edges, self.n_edges = grid.tet_edges_tx6, len(grid.edges_ex2)
@@ -424,17 +528,17 @@ class _Surface:
     def full_pass(self) -> None:
         """Evaluate every vertex without gradients, count band misses, rebuild the band.
 
-        In bfloat16 where the CPU has native support (1.6x faster than float32 on 1024-row chunks of the paper's
-        MLP here, measured 2026-12-04): these values only choose the band and count misses; every band vertex is
-        evaluated again in float32 before the mesh is extracted, so the mesh never sees them (at most a crossing
-        tet whose |s| is within the bfloat16 error of zero, up to 0.10 cells on syn12's band, and more than a ring
-        away from any other crossing tet could be left out until the next pass). The fixed vertices are not
-        evaluated.
+        In bfloat16 with ``band_bf16`` (3x faster than float32 on this MLP here, measured 2026-12-04): these values
+        only choose the band and count misses; the band's rows are evaluated again before the mesh is extracted,
+        with float32 wherever the mesh needs values or a sign is within ``bf16_sign_margin`` of zero (at most a
+        crossing tet whose |s| is within the bfloat16 error of zero and more than a ring away from any other
+        crossing tet could be left out of the band until the next pass). The fixed vertices are not evaluated.
         """
         with self.clock("full_pass"), torch.no_grad():
             # the fixed vertices (box faces, below the table: 16 % of syn12's grid) are +0.5 whatever the MLP says
             s = torch.full((self.grid.n_verts,), 0.5)
-            s[self._free] = self.fld._mlp_rows(self._free, bf16=_BF16)[:, 0].float()
+            s[self._free] = self.fld._mlp_rows(self._free, bf16=self.mixed)[:, 0].float()
+            self._fresh_s = s if self.mixed else None
             if self.band is not None:
                 self.stats["band_misses"] += self.band.misses(s)
             self.band = build_band(self.grid.tets_tx4, s, self.grid.grid_shape, self.cfg.band_rings)
@@ -477,27 +581,85 @@ class _Surface:
         1.6x faster than float32 on 1024-row chunks of this MLP here and about half of the band's rows are
         crossing tets' vertices; the bfloat16 SDF also differed by up to 0.10 cells from float32."""
         with self.clock("field"), torch.no_grad():
-            out = self.fld._mlp_rows(self.band.vert_ids_n)
+            out, exact = self._band_field()
             s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
         if self.band.boundary_flipped(s_n):
             self.stats["boundary_rebuilds"] += 1
             self.full_pass()
             with self.clock("field"), torch.no_grad():
-                out = self.fld._mlp_rows(self.band.vert_ids_n)
+                out, exact = self._band_field()
                 s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
+        ids = self.band.vert_ids_n
+        while True:
+            with self.clock("marching_tets"):
+                bm = band_march(s_n, self._tets_local, self._edges_b, self.n_edges, self._work)
+                vc_n = torch.from_numpy(bm.vert_ids_c)
+            if exact is None:
+                break
+            # crossing tets' vertices that were evaluated in bfloat16 (not crossing at the last step): float32 now
+            late = vc_n[~exact[vc_n]]
+            if len(late) == 0:
+                break
+            with self.clock("field"), torch.no_grad():
+                fix = self.fld._mlp_rows(ids[late])
+                s_fix = self.fld.sdf_of(fix[:, 0], ids[late])
+                flipped = int(((s_fix < 0) != (s_n[late] < 0)).sum())
+                out[late], s_n[late], exact[late] = fix, s_fix, True
+            self.stats["bf16_late_rows"] += len(late)
+            if flipped == 0:
+                break  # same signs, same topology: only the positions needed float32
+            self.stats["bf16_sign_errors"] += flipped  # a bfloat16 sign beyond the margin was wrong: march again
         with self.clock("marching_tets"):
-            bm = band_march(s_n, self._tets_local, self._edges_b, self.n_edges, self._work)
-            vc_n = torch.from_numpy(bm.vert_ids_c)
-            vc = self.band.vert_ids_n[vc_n]
+            vc = ids[vc_n]
             with torch.no_grad():
                 v_c = self.fld.verts_of(out[vc_n, 1:], vc)
             s_c = s_n[vc_n].requires_grad_(True)
             v_c = v_c.requires_grad_(True)
             mv = interpolate_surface(v_c, s_c * self.fld.cell, bm.edge_a_m, bm.edge_b_m)
             mf = torch.from_numpy(bm.faces_fx3)
+            if self.mixed:
+                if self._prev_hot is not None:
+                    self._hot_v[self._prev_hot] = False
+                self._hot_v[vc] = True
+                self._prev_hot = vc
         self._leaves = (vc, s_c, v_c)
         self.stats["grad_verts"] += len(vc)
         return s_c, v_c, mv, mf
+
+    def _band_field(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The MLP's (Nb, 4) float32 outputs on the band's vertices, without gradients, and which rows are float32
+        values (None: all of them). With ``band_bf16``: the vertices of the last step's crossing tets in float32, the
+        others in bfloat16, and those whose bfloat16 |s| is below ``bf16_sign_margin`` again in float32; the
+        bfloat16 rows' signs are trusted, their values are not used for the mesh (:meth:`_band_mesh`)."""
+        ids = self.band.vert_ids_n
+        if not self.mixed:
+            return self.fld._mlp_rows(ids), None
+        hot = self._hot_v[ids]
+        f = torch.nonzero(hot, as_tuple=True)[0]
+        b = torch.nonzero(~hot, as_tuple=True)[0]
+        o32, o16 = self.fld._mlp_rows_mixed(ids[f], ids[b])
+        out = torch.empty((len(ids), o32.shape[1]))
+        out[f], out[b] = o32, o16
+        exact = hot.clone()
+        near = b[self.fld.sdf_of(o16[:, 0], ids[b]).abs() < self.cfg.bf16_sign_margin]
+        if len(near):
+            out[near] = self.fld._mlp_rows(ids[near])
+            exact[near] = True
+        self.stats["bf16_rows"] += len(b)
+        self.stats["f32_rows"] += len(f) + len(near)
+        self.stats["bf16_near_rows"] += len(near)
+        if self._fresh_s is not None:  # rows this step evaluated both ways: the bfloat16 error
+            both = ids[exact]
+            if len(both):
+                err = float((self.fld.sdf_of(out[exact, 0], both) - self._fresh_s[both]).abs().max())
+                if err > self.stats["bf16_err_max"]:
+                    self.stats["bf16_err_max"] = err
+                    if err > 0.5 * self.cfg.bf16_sign_margin:
+                        log.warning("DMTet: a bfloat16 SDF value was %.3f cells off its float32 value, more than half "
+                                    "of bf16_sign_margin=%.3f; raise the margin or set band_bf16='off'", err,
+                                    self.cfg.bf16_sign_margin)
+            self._fresh_s = None
+        return out, exact
 
     def backward_field(self) -> None:
         """After ``loss.backward()``: chain the gradients that reached the crossing tets' vertices through the MLP,
@@ -750,7 +912,8 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     mesh = TriMesh(mv.numpy().astype(np.float64), mf.numpy())
     hist["eval_iter"].append(float(n_run))
     hist["iou_all"].append(_iou_all(mesh.verts_vx3, mesh.faces_fx3, K_all, T_all, masks_vxhxw))
-    for k in ("full_passes", "boundary_rebuilds", "band_misses"):
+    for k in ("full_passes", "boundary_rebuilds", "band_misses", "bf16_rows", "f32_rows", "bf16_near_rows",
+              "bf16_late_rows", "bf16_sign_errors", "bf16_err_max"):
         hist[k] = [float(surf.stats[k])]
     hist["band_verts"], hist["band_tets"] = surf.stats["band_verts"], surf.stats["band_tets"]
     hist["grad_verts_mean"] = [surf.stats["grad_verts"] / max(1, n_run)]
@@ -767,6 +930,7 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
         "torch_threads": float(torch.get_num_threads()),
         "fit_threads": float(n_fit),
         "side_thread": float(side is not None),
+        "band_bf16": float(surf.mixed),
     }
     for k, v in clock.s.items():
         timings[f"{k}_ms_per_step"] = 1e3 * v / n_it
