@@ -129,11 +129,24 @@ def _objects(mesh: TriMesh) -> list[TriMesh]:
     return [m for m in keep if signed_volume(m.verts_vx3, m.faces_fx3) > 0]
 
 
+def _bf16_label(dm: dict[str, Any] | None) -> str:
+    """``DMTetConfig.bf16`` as it ran: the band's rows away from the surface, the MLP's start fit ("-": not recorded,
+    runs before 2026-12-04 22:00, all float32 rows and fit)."""
+    if not dm or dm.get("bf16") is None:
+        return "-"
+    return f"{'yes' if dm['bf16'] else 'no'}, {'yes' if dm.get('fit_bf16') else 'no'}"
+
+
 def torm_method(cfg: ReconstructionConfig) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]]:
     def run(cap: Capture) -> tuple[list[TriMesh], dict[str, Any]]:
         rec = reconstruct(cap, cfg)
         keep = ("band_levels", "grid_cells", "vote_views", "repaired_views", "rejected_objects", "unexplained_views")
-        return list(rec.object_meshes), {"timings": rec.timings, **{k: rec.info.get(k) for k in keep}}
+        extra: dict[str, Any] = {}
+        dm = rec.info.get("dmtet_timings")
+        if cfg.mode == "paper" and dm:  # what ran: the loop's threads, the side thread, bfloat16 (band rows, fit)
+            extra["dmtet"] = {k: dm.get(k) for k in ("ms_per_step", "mlp_fit_s", "steps_run", "torch_threads",
+                                                     "side_thread", "bf16", "fit_bf16")}
+        return list(rec.object_meshes), {"timings": rec.timings, **{k: rec.info.get(k) for k in keep}, **extra}
     return run
 
 
@@ -418,7 +431,7 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
             prow.append([key, p.get("error", "")[:60] or p.get("chamfer_mm"), p.get("volume_iou"),
                          p.get("heldout_iou_mean"), f"{p.get('n_found', 0)}/{s['n_objects']}", p.get("time_s"),
                          f.get("chamfer_mm"), f.get("time_s"), c.get("chamfer_mm"), c.get("time_s"),
-                         p.get("load_avg_1min")])
+                         p.get("load_avg_1min"), _bf16_label(p.get("dmtet"))])
         if prow:
             md.append(f"\n## {PAPER} (`reconstruct(mode=\"paper\")`, default config: 5000 steps, sphere start, "
                       "no rescue) beside TORM-fast and the best carve\n\nOne untimed run per scene (its time includes "
@@ -426,7 +439,7 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
                       "as the others. Run later than them (`--paper-only`), on the code and machine in `more_contexts`."
                       "\n\n" + bc.md_table(["scene", "Chamfer mm (or error)", "vol IoU", "held-out IoU", "found",
                                            "time s", "TORM-fast Chamfer mm", "TORM-fast s", "best carve Chamfer mm",
-                                           "best carve s", "load"], prow))
+                                           "best carve s", "load", "bfloat16 (band, fit)"], prow))
         names = list(next(iter(doc["scenes"].values()))["methods"])
         for nm in {k for s in doc["scenes"].values() for k in s["methods"]} - set(names):
             names.append(nm)

@@ -95,6 +95,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "0: the process's --threads)")
     p.add_argument("--paper-side-thread", choices=("auto", "on", "off"), default=None,
                    help="paper part: DMTetConfig.side_thread (default auto: on with 1 torch thread and --threads >= 2)")
+    p.add_argument("--paper-bf16", choices=("auto", "on", "off"), default=None,
+                   help="paper part: DMTetConfig.bf16 (default auto: the band's rows away from the surface and the "
+                        "start fit in bfloat16 where the CPU has it natively)")
     p.add_argument("--mlp-fit-iters", type=int, default=None, help="MLP fit to the sphere (default: config)")
     p.add_argument("--table1", action="store_true", help="run the table1 part only (same as --parts table1)")
     p.add_argument("--table1-scenes", nargs="+", default=["syn1", "syn4", "syn5", "syn10"])
@@ -181,7 +184,7 @@ def _dm_conf(dcfg: DMTetConfig) -> dict[str, Any]:
             "alpha_min", "views_per_batch", "mask_res", "lambda_mask", "lambda_eikonal", "rescue", "narrow_band",
             "band_rings", "full_pass_every", "eikonal_points", "mlp_hidden", "mlp_layers", "mlp_pe_freqs",
             "mlp_fit_clamp",
-            "max_deform", "sphere_scale", "seed")
+            "max_deform", "sphere_scale", "seed", "side_thread", "bf16", "bf16_sign_margin")
     out = {k: getattr(dcfg, k) for k in keys}
     out["alpha_decay_iters"] = dcfg.decay_T
     out["mlp_fit_iters"] = dcfg.mlp_fit_iters if dcfg.param == "mlp" else 0
@@ -228,6 +231,8 @@ def run_dmtet(scene: bc.Scene, a: argparse.Namespace, dcfg: DMTetConfig, masks: 
         "full_passes": int(h["full_passes"][0]), "boundary_rebuilds": int(h["boundary_rebuilds"][0]),
         "band_misses": int(h["band_misses"][0]),
         "band_verts_mean": _mean(h["band_verts"]), "grid_verts": grid.n_verts,
+        "bf16_stats": {k: h[k][0] for k in ("bf16_rows", "f32_rows", "bf16_near_rows", "bf16_late_rows",
+                                            "bf16_sign_errors", "bf16_err_max") if k in h},
         "time_to_iou_0.90": time_to(h, 0.90, ms, fit), "time_to_iou_0.95": time_to(h, 0.95, ms, fit),
     }
     out.update(bc.evaluate_meshes(objects, scene))
@@ -341,6 +346,8 @@ def part_paper(a: argparse.Namespace, ctx: dict[str, Any]) -> None:
         dm = replace(dm, threads=a.paper_threads)
     if a.paper_side_thread is not None:
         dm = replace(dm, side_thread=a.paper_side_thread)
+    if a.paper_bf16 is not None:
+        dm = replace(dm, bf16=a.paper_bf16)
     for name in a.paper_scenes:
         if name in done:
             continue

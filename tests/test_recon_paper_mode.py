@@ -127,12 +127,12 @@ def test_band_structure_on_a_plane():
     assert build_band(tets, torch.ones_like(s), grid.grid_shape, 2).n_verts == 0  # no surface, no band
 
 
-@pytest.mark.parametrize("band_bf16", ["on", "off"])
-def test_band_gives_the_full_mesh_and_the_same_gradients(scene, band_bf16):
+@pytest.mark.parametrize("bf16", ["on", "off"])
+def test_band_gives_the_full_mesh_and_the_same_gradients(scene, bf16):
     """The band (in float32, or with its rows away from the surface in bfloat16) gives the full evaluation's mesh."""
     _, masks, K, T = scene
     grid = build_tet_grid(BOUNDS, 20)
-    cfg = DMTetConfig(param="mlp", mlp_hidden=64, mlp_fit_iters=300, mlp_fit_lr=3e-3, band_rings=1, band_bf16=band_bf16)
+    cfg = DMTetConfig(param="mlp", mlp_hidden=64, mlp_fit_iters=300, mlp_fit_lr=3e-3, band_rings=1, bf16=bf16)
     fixed = torch.zeros(grid.n_verts, dtype=torch.bool)
     fld = _Field(grid, _two_spheres_cells(grid), fixed, cfg, torch.Generator().manual_seed(0))
 
@@ -156,7 +156,7 @@ def test_band_gives_the_full_mesh_and_the_same_gradients(scene, band_bf16):
     assert surf.band.n_verts < 0.5 * grid.n_verts  # the band really is narrow here
     assert torch.equal(mf_b, mf_ref)
     assert torch.allclose(mv_b, mv_ref, atol=1e-6)
-    if band_bf16 == "on":  # the first step has no crossing set yet: every row went through bfloat16 first
+    if bf16 == "on":  # the first step has no crossing set yet: every row went through bfloat16 first
         assert surf.stats["bf16_rows"] == surf.band.n_verts and surf.stats["bf16_late_rows"] > 0
         assert surf.stats["bf16_err_max"] < 0.5 * cfg.bf16_sign_margin  # measured on the rows seen both ways
         s_b2, _, mv_b2, mf_b2 = surf.extract(1)  # the next step starts from the crossing set in float32
@@ -170,8 +170,8 @@ def test_band_gives_the_full_mesh_and_the_same_gradients(scene, band_bf16):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
 
 
-@pytest.mark.parametrize(("split_rows", "band_bf16"), [(2, "off"), (10**9, "off"), (2, "on")])
-def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows, band_bf16):
+@pytest.mark.parametrize(("split_rows", "bf16"), [(2, "off"), (10**9, "off"), (2, "on")])
+def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows, bf16):
     """The band (with its gradient pass in two halves from ``split_rows`` rows up) follows the full evaluation."""
     import torm.reconstruction.dmtet as dm
 
@@ -179,7 +179,7 @@ def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows, ba
     _, masks, K, T = scene
     grid = build_tet_grid(BOUNDS, 16)
     cfg = DMTetConfig(param="mlp", iterations=12, views_per_batch=2, eval_every=6, mlp_hidden=32, mlp_fit_iters=60,
-                      mlp_fit_lr=3e-3, full_pass_every=4, band_bf16=band_bf16)
+                      mlp_fit_lr=3e-3, full_pass_every=4, bf16=bf16)
     ref = optimise_dmtet(grid, K, T, masks, replace(cfg, narrow_band=False), table_z=0.0)
     fast = optimise_dmtet(grid, K, T, masks, cfg, table_z=0.0)
     assert fast.history["full_passes"][0] >= 3 and ref.history["full_passes"] == [0.0]

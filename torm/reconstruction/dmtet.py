@@ -136,17 +136,20 @@ class DMTetConfig:
             code; 135 s before the gradient pass was cut in halves, which on one thread cost more: field gradient
             2.8 -> 4.0 ms/step); the final meshes are identical (Chamfer and volume IoU to every digit). Without it
             the views of a batch render on ``threads`` threads.
-        band_bf16: MLP with a band: each step the band's vertices that were not vertices of a crossing tet the step
-            before are evaluated in bfloat16 (weights and encodings cast once, float32 accumulation; 3x the float32
-            rows per second on this 2-core AVX-512-BF16 machine, 1024-row chunks of the 128-wide layers), the
-            others in float32. Only signs are taken from bfloat16 values, and only where ``|s| >=
-            bf16_sign_margin``; closer rows and every vertex of a crossing tet are evaluated in float32, so the
-            mesh, its positions and every gradient are those of the float32 field (a bfloat16 sign is trusted
-            only beyond the margin; the largest bfloat16 error seen on rows evaluated both ways is recorded in
-            ``history["bf16_err_max"]`` and a warning is logged when it comes within half the margin). "auto": on
-            where the CPU has native bfloat16 (emulated bfloat16 is slower than float32); the full passes use the
-            same bfloat16 rows. "on"/"off" force it.
-        bf16_sign_margin: cells; see ``band_bf16``. The largest bfloat16 error measured on syn12's band over a
+        bf16: MLP only: bfloat16 where float32 values are not needed.
+            (1) With a band, each step the band's vertices that were not vertices of a crossing tet the step before
+            are evaluated in bfloat16 (weights and encodings cast once, float32 accumulation; 3x the float32 rows
+            per second on this 2-core AVX-512-BF16 machine, 1024-row chunks of the 128-wide layers), the others in
+            float32. Only signs are taken from bfloat16 values, and only where ``|s| >= bf16_sign_margin``; closer
+            rows and every vertex of a crossing tet are evaluated in float32, so the mesh, its positions and every
+            gradient are those of the float32 field as long as no bfloat16 error reaches the margin (the largest
+            error seen on rows evaluated both ways is recorded in ``history["bf16_err_max"]`` and a warning is
+            logged when it comes within half the margin). The full passes use the same bfloat16 rows. "auto": on
+            where the CPU has native bfloat16 (emulated bfloat16 is slower than float32); "on"/"off" force it.
+            (2) Where the CPU has native bfloat16 and this is not "off", the MLP's start fit runs under bfloat16
+            autocast (float32 weights, loss and Adam): syn12's grid, 300 steps on 2 threads, 1.6-1.8 s instead of
+            4.1-5.6 s, fit error 0.280 vs 0.279 cells (mean |f - target| over the grid).
+        bf16_sign_margin: cells; see ``bf16``. The largest bfloat16 error measured on syn12's band over a
             5000-step run was 0.090 cells (``history["bf16_err_max"]``); 0.25 is 2.8 times that. With 0.5, 43 % of
             the bfloat16 rows were within the margin and evaluated again (field stage 10.0 ms/step vs 8.5 with 0.2
             on syn12's first 1000 steps; 10.4 with float32 only).
@@ -189,7 +192,7 @@ class DMTetConfig:
     threads: int = 1
     fit_threads: int = 0
     side_thread: Literal["auto", "on", "off"] = "auto"
-    band_bf16: Literal["auto", "on", "off"] = "auto"
+    bf16: Literal["auto", "on", "off"] = "auto"
     bf16_sign_margin: float = 0.25
 
     def __post_init__(self) -> None:
@@ -200,7 +203,7 @@ class DMTetConfig:
                               f"{self.fit_threads}")
         for name, valid in (("param", _PARAMS), ("start", _STARTS), ("loss", _LOSSES),
                             ("lr_schedule", ("exp", "cosine")), ("robust_kind", ("mad", "gm")),
-                            ("side_thread", ("auto", "on", "off")), ("band_bf16", ("auto", "on", "off"))):
+                            ("side_thread", ("auto", "on", "off")), ("bf16", ("auto", "on", "off"))):
             if getattr(self, name) not in valid:
                 raise ConfigError(f"DMTetConfig.{name}={getattr(self, name)!r}; valid choices: {', '.join(valid)}")
         if self.iterations < 0 or self.views_per_batch < 1 or self.mask_res < 8:
@@ -339,9 +342,11 @@ class _Field:
         tgt = target_cells
         n = len(self.x_norm)
         bs = min(n, 8192)
+        low = self.cfg.bf16 != "off" and _BF16  # see DMTetConfig.bf16
         for _ in range(self.cfg.mlp_fit_iters):
             idx = torch.randint(0, n, (bs,), generator=gen)
-            out = self.mlp.net(self.pe[idx])
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=low):
+                out = self.mlp.net(self.pe[idx]).float()
             loss = ((out[:, 0] - tgt[idx]) ** 2).mean() + (out[:, 1:] ** 2).mean()
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -514,8 +519,8 @@ class _Surface:
         self.stats = {"full_passes": 0, "boundary_rebuilds": 0, "band_misses": 0, "band_verts": [], "band_tets": [],
                       "grad_verts": 0, "backprop_verts": 0, "bf16_rows": 0, "f32_rows": 0, "bf16_near_rows": 0,
                       "bf16_late_rows": 0, "bf16_sign_errors": 0, "bf16_err_max": 0.0}
-        # bfloat16 for the band's rows away from the surface (see DMTetConfig.band_bf16)
-        self.mixed = self.banded and (cfg.band_bf16 == "on" or (cfg.band_bf16 == "auto" and _BF16))
+        # bfloat16 for the band's rows away from the surface (see DMTetConfig.bf16)
+        self.mixed = self.banded and (cfg.bf16 == "on" or (cfg.bf16 == "auto" and _BF16))
         self._hot_v = torch.zeros(grid.n_verts, dtype=torch.bool)  # crossing tets' vertices at the last step
         self._prev_hot: torch.Tensor | None = None
         self._fresh_s: torch.Tensor | None = None  # the bfloat16 full pass of this step, to measure the error
@@ -528,7 +533,7 @@ class _Surface:
     def full_pass(self) -> None:
         """Evaluate every vertex without gradients, count band misses, rebuild the band.
 
-        In bfloat16 with ``band_bf16`` (3x faster than float32 on this MLP here, measured 2026-12-04): these values
+        In bfloat16 with ``bf16`` (3x faster than float32 on this MLP here, measured 2026-12-04): these values
         only choose the band and count misses; the band's rows are evaluated again before the mesh is extracted,
         with float32 wherever the mesh needs values or a sign is within ``bf16_sign_margin`` of zero (at most a
         crossing tet whose |s| is within the bfloat16 error of zero and more than a ring away from any other
@@ -576,10 +581,12 @@ class _Surface:
         vertex reaches the mesh). :meth:`backward_field` carries their gradients into the MLP. The topology comes
         from :func:`band_march` (compiled); positions are computed for the crossing tets' vertices only.
 
-        Measured and dropped: the band's rows in bfloat16 except the crossing tets' vertices (float32, as the
-        mesh needs): slower on syn12 (12.9 vs about 10 ms/step for this stage), because bfloat16 autocast is only
-        1.6x faster than float32 on 1024-row chunks of this MLP here and about half of the band's rows are
-        crossing tets' vertices; the bfloat16 SDF also differed by up to 0.10 cells from float32."""
+        With ``bf16`` the rows away from the surface are evaluated in bfloat16 (:meth:`_band_field`) and every
+        crossing tet's vertex that was not crossing the step before is evaluated again in float32 after the march;
+        if its float32 sign differs from the bfloat16 one (never seen: ``history["bf16_sign_errors"]``), the band
+        is marched again. A first attempt under CPU autocast was slower than float32 (12.9 vs about 10 ms/step on
+        syn12): autocast casts the weights for every chunk, and oneDNN compiled a kernel for every new row count
+        (the band's size changes every step), hence the pre-cast weights and the padded row counts."""
         with self.clock("field"), torch.no_grad():
             out, exact = self._band_field()
             s_n = self.fld.sdf_of(out[:, 0], self.band.vert_ids_n)
@@ -628,7 +635,7 @@ class _Surface:
 
     def _band_field(self) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The MLP's (Nb, 4) float32 outputs on the band's vertices, without gradients, and which rows are float32
-        values (None: all of them). With ``band_bf16``: the vertices of the last step's crossing tets in float32, the
+        values (None: all of them). With ``bf16``: the vertices of the last step's crossing tets in float32, the
         others in bfloat16, and those whose bfloat16 |s| is below ``bf16_sign_margin`` again in float32; the
         bfloat16 rows' signs are trusted, their values are not used for the mesh (:meth:`_band_mesh`)."""
         ids = self.band.vert_ids_n
@@ -656,7 +663,7 @@ class _Surface:
                     self.stats["bf16_err_max"] = err
                     if err > 0.5 * self.cfg.bf16_sign_margin:
                         log.warning("DMTet: a bfloat16 SDF value was %.3f cells off its float32 value, more than half "
-                                    "of bf16_sign_margin=%.3f; raise the margin or set band_bf16='off'", err,
+                                    "of bf16_sign_margin=%.3f; raise the margin or set bf16='off'", err,
                                     self.cfg.bf16_sign_margin)
             self._fresh_s = None
         return out, exact
@@ -930,7 +937,8 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
         "torch_threads": float(torch.get_num_threads()),
         "fit_threads": float(n_fit),
         "side_thread": float(side is not None),
-        "band_bf16": float(surf.mixed),
+        "bf16": float(surf.mixed),
+        "fit_bf16": float(cfg.param == "mlp" and cfg.bf16 != "off" and _BF16),
     }
     for k, v in clock.s.items():
         timings[f"{k}_ms_per_step"] = 1e3 * v / n_it
