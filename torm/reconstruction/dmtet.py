@@ -502,7 +502,7 @@ def _bf16_supported() -> bool:
         return False
 
 
-#: native bfloat16 matmuls on this CPU (AVX512-BF16/AMX): used for the full passes of the narrow band only
+#: native bfloat16 matmuls on this CPU (AVX512-BF16/AMX): what DMTetConfig.bf16="auto" switches on
 _BF16 = _bf16_supported()
 
 
