@@ -8,14 +8,22 @@ import torch
 import trimesh
 
 from torm.geometry import invert_T, look_at_cv
+from torm.reconstruction import losses
 from torm.reconstruction.raster import (
+    SilhouetteBatch,
+    _compact_pixels,
     _orientation_kernel,
+    _project_kernel,
+    _rasterize_oriented,
+    edge_coverage_reference,
     face_adjacency,
     face_adjacency_reference,
+    project_torch,
     render_depth,
     render_mask,
     render_silhouette,
     render_silhouettes,
+    render_silhouettes_sparse,
 )
 from torm.types import CameraView
 
@@ -177,3 +185,100 @@ def test_gradient_moves_edge_towards_target():
     ((render_silhouette(v, faces, K, T_ID, H, W) - target) ** 2).sum().backward()
     assert v.grad[1, 0] < 0 and v.grad[2, 0] < 0  # -grad points to +x (image right)
     assert abs(float(v.grad[0, 0])) < 1e-9 and abs(float(v.grad[3, 0])) < 1e-9
+
+
+def test_rasteriser_orientation_equals_the_reference_kernel():
+    """The rasteriser's per-face orientations are ``_orientation_kernel``'s, also for faces behind the camera."""
+    m, T = _sphere_scene()
+    p = m.vertices @ T[:3, :3].T + T[:3, 3]
+    uvz = np.stack([K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2], p[:, 2]], axis=1)
+    uvz[:5, 2] = -1.0  # a few vertices behind the camera: their faces are not rasterised but still oriented
+    faces = np.asarray(m.faces, dtype=np.int64)
+    tri, _, orient = _rasterize_oriented(uvz, faces, H, W)
+    assert np.array_equal(orient, _orientation_kernel(np.ascontiguousarray(uvz[:, :2]), faces))
+    assert set(np.unique(orient)) <= {-1, 0, 1} and (orient == 1).any() and (orient == -1).any()
+
+
+def test_compact_pixels_is_unique_with_inverse():
+    rng = np.random.default_rng(0)
+    idx = rng.integers(0, 50, size=200)
+    pix, inv = _compact_pixels(idx, 50)
+    want_pix, want_inv = np.unique(idx, return_inverse=True)
+    assert np.array_equal(pix, want_pix) and np.array_equal(inv, want_inv)
+    pix0, inv0 = _compact_pixels(np.zeros(0, dtype=np.int64), 10)
+    assert len(pix0) == len(inv0) == 0
+
+
+def test_sparse_silhouettes_and_loss_equal_the_dense_ones():
+    """The sparse silhouettes hold the dense image; eq. (2) on them has the dense loss's value and vertex gradient."""
+    m, T = _sphere_scene()
+    T2 = invert_T(look_at_cv(np.array([-0.2, 0.2, 0.1]), np.zeros(3)))
+    Ks, Ts = np.stack([K, K]), np.stack([T, T2])
+    target = torch.from_numpy(np.roll(render_silhouettes(torch.tensor(m.vertices), m.faces, Ks, Ts, H, W).numpy()
+                                      > 0.5, 2, axis=2).astype(np.float64))
+    v1 = torch.tensor(m.vertices, requires_grad=True)
+    sil = render_silhouettes_sparse(v1, m.faces, Ks, Ts, H, W)
+    assert len(sil.pix_n) > 0 and bool((sil.pix_n[1:] > sil.pix_n[:-1]).all())  # distinct, ascending
+    dense = sil.dense()
+    assert np.allclose(sil.values(), dense.detach().numpy(), atol=1e-6)
+    assert set(np.unique(sil.hard_vxhxw)) == {0.0, 1.0}
+    loss_s = losses.envelope_mask_loss_sparse(torch.from_numpy(sil.hard_vxhxw).double(), sil.pix_n, sil.delta_n,
+                                              target, 2.5)
+    loss_s.sum().backward()
+    v2 = torch.tensor(m.vertices, requires_grad=True)
+    loss_d = losses.envelope_mask_loss(render_silhouettes(v2, m.faces, Ks, Ts, H, W), target, 2.5)
+    loss_d.sum().backward()
+    assert torch.allclose(loss_s.detach(), loss_d.detach(), atol=1e-12)
+    assert float(v1.grad.abs().max()) > 0 and torch.allclose(v1.grad, v2.grad, atol=1e-12)
+
+
+def test_sparse_loss_equals_dense_loss_on_random_values():
+    """The identity behind the sparse loss, on a hand-made prediction (fractional values, two views)."""
+    g = torch.Generator().manual_seed(0)
+    hard = (torch.rand((2, 5, 7), generator=g) > 0.5).float()
+    target = torch.rand((2, 5, 7), generator=g)
+    pix = torch.tensor([0, 3, 34, 35, 40, 69])
+    delta = (torch.rand(6, generator=g) - 0.5).requires_grad_(True)
+    got = losses.envelope_mask_loss_sparse(hard, pix, delta, target, 1.7)
+    got.sum().backward()
+    d2 = delta.detach().clone().requires_grad_(True)
+    want = losses.envelope_mask_loss(hard.reshape(-1).index_add(0, pix, d2).reshape(2, 5, 7), target, 1.7)
+    want.sum().backward()
+    assert torch.allclose(got.detach(), want.detach(), atol=1e-6) and torch.allclose(delta.grad, d2.grad, atol=1e-6)
+
+
+def test_sparse_silhouettes_of_an_empty_mesh_and_an_unfinished_batch():
+    v = torch.zeros((0, 3), requires_grad=True)
+    sil = render_silhouettes_sparse(v, np.zeros((0, 3), np.int64), K, T_ID, H, W)
+    assert sil.hard_vxhxw.shape == (1, H, W) and len(sil.pix_n) == 0 and sil.values().sum() == 0
+    m, T = _sphere_scene()
+    batch = SilhouetteBatch(torch.tensor(m.vertices), m.faces, np.stack([K, K]), np.stack([T, T]), H, W)
+    batch.view(0, face_adjacency(m.faces, len(m.vertices)))
+    with pytest.raises(RuntimeError, match="every view"):
+        batch.finish()
+
+
+def test_compiled_projection_and_edge_coverage_equal_the_torch_reference():
+    """The compiled float64 projection and edge corrections (forward and backward) equal the torch ops they
+    replace, on a sphere seen in two views."""
+    m, T = _sphere_scene()
+    T2 = invert_T(look_at_cv(np.array([-0.2, 0.2, 0.1]), np.zeros(3)))
+    Ks, Ts = np.stack([K, K]), np.stack([T, T2])
+    X = torch.tensor(m.vertices, requires_grad=True)
+    uvz = _project_kernel(np.ascontiguousarray(m.vertices), Ks, Ts)
+    assert np.allclose(uvz, project_torch(X, torch.tensor(Ks), torch.tensor(Ts)).detach().numpy(), atol=1e-9)
+    fast = SilhouetteBatch(X, m.faces, Ks, Ts, H, W)
+    slow = SilhouetteBatch(X, m.faces, Ks, Ts, H, W, compiled=False)
+    adj = face_adjacency(m.faces, len(m.vertices))
+    for i in range(2):
+        fast.view(i, adj)
+        slow.view(i, adj)
+    assert np.array_equal(fast.hard, slow.hard)
+    a, b = fast.finish(), slow.finish()
+    assert torch.equal(a.pix_n, b.pix_n) and len(a.pix_n) > 50
+    assert torch.allclose(a.delta_n, b.delta_n, atol=1e-9)
+    w = torch.randn(len(a.pix_n), generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    ga = torch.autograd.grad((a.delta_n * w).sum(), X)[0]
+    gb = torch.autograd.grad((b.delta_n * w).sum(), X)[0]
+    assert float(ga.abs().max()) > 0 and torch.allclose(ga, gb, atol=1e-9)
+    assert callable(edge_coverage_reference)

@@ -26,10 +26,11 @@ import logging
 import math
 import os
 import time
-from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Literal
 
 import cv2
@@ -43,7 +44,7 @@ from torm.reconstruction.band_march import BandMarchWork, band_march, interpolat
 from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.mlp import SDFDeformMLP
 from torm.reconstruction.narrow_band import Band, build_band
-from torm.reconstruction.raster import face_adjacency, render_mask, render_silhouettes
+from torm.reconstruction.raster import SilhouetteBatch, face_adjacency, render_mask
 from torm.reconstruction.tetgrid import TetGrid
 from torm.runtime import default_threads
 from torm.types import TriMesh
@@ -124,8 +125,9 @@ class DMTetConfig:
             :func:`torm.runtime.default_threads` gives (``TORM_THREADS``, else the idle cores). The periodic full
             passes stay on ``threads``: switching them to 2 threads made the whole run slower (29.3 vs 28.1
             ms/step), the idle OpenMP workers competing with the 1-thread loop.
-        side_thread: MLP only: a second thread, itself on 1 torch thread, that computes eq. (4) and its gradient
-            while the main thread renders the batch, and half of every gradient-free field evaluation (the band,
+        side_thread: MLP only: a second thread, itself on 1 torch thread, that computes the face adjacency and
+            the batch's last view, then eq. (4) and its gradient, while the main thread rasterises the other views,
+            and half of every gradient-free field evaluation (the band,
             the full passes) and of the band's gradient pass. Same values as without it: the work is split by rows
             or by independent terms and the parameter gradients are summed in a fixed order
             (tests/test_recon_paper_mode.py). "auto": on when
@@ -282,6 +284,13 @@ def silhouette_iou(pred_hw: np.ndarray, target_hw: np.ndarray) -> float:
     t = target_hw > 0.5
     union = np.logical_or(p, t).sum()
     return 1.0 if union == 0 else float(np.logical_and(p, t).sum() / union)
+
+
+def _batch_iou(pred_vxhxw: np.ndarray, target_vxhxw: np.ndarray) -> np.ndarray:
+    """(V,) :func:`silhouette_iou` of boolean (V, H, W) stacks, in one pass."""
+    inter = np.logical_and(pred_vxhxw, target_vxhxw).sum(axis=(1, 2))
+    union = np.logical_or(pred_vxhxw, target_vxhxw).sum(axis=(1, 2))
+    return np.where(union == 0, 1.0, inter / np.maximum(union, 1))
 
 
 def dome_sdf(verts_vx3: np.ndarray, bounds_2x3: np.ndarray, floor_z: float, scale: float) -> np.ndarray:
@@ -460,9 +469,8 @@ class _Field:
         n_max = self.cfg.eikonal_points
         if n_max and len(v0) > n_max:
             v0 = v0[torch.randperm(len(v0), generator=gen)[:n_max]]
-        x = ((v0 - self.lo) / self.ext * 2.0 - 1.0).requires_grad_(True)
-        f = self.mlp(x)[:, 0]
-        (g,) = torch.autograd.grad(f.sum(), x, create_graph=True)
+        # the gradient in closed form (SDFDeformMLP.sdf_input_gradient): 2x faster than a double backward here
+        g = self.mlp.sdf_input_gradient((v0 - self.lo) / self.ext * 2.0 - 1.0)
         g_cells = g * 2.0 / self.ext * self.cell  # d(sdf cells) / d(position in cells)
         return losses.eikonal_loss_grad(g_cells)
 
@@ -819,6 +827,7 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     # 2500 steps: 276 vs 126 boundary rebuilds, 37.4 vs 31.5 ms/step)
     opt = torch.optim.Adam(fld.params, lr=cfg.lr * lr_scale)
     masks_t = torch.from_numpy(np.ascontiguousarray(masks_vxhxw, dtype=np.float32))
+    masks_in = masks_vxhxw > 0.5
     K_all = np.asarray(K_vx3x3, dtype=np.float64)
     T_all = np.asarray(T_cam_world_vx4x4, dtype=np.float64)
     hist: dict[str, list[float]] = {k: [] for k in ("loss", "mask_loss", "eikonal", "iou", "alpha", "lr", "n_faces")}
@@ -833,11 +842,10 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
         side = _side_pool()
     fld.side = side
     eik_side = side if cfg.lambda_eikonal > 0 else None
-    # with a side thread the main thread renders alone (measured faster than both threads rendering while the side
-    # thread runs eq. 4). Measured without gain (syn12; eq. 4 takes 4.5-5.6 ms, the views' compiled work about
-    # 5 ms): the side thread taking views once eq. 4 is done, and the reverse (the side thread rasterises while
-    # the main thread computes eq. 4; 33.2 vs 33.4 ms/step, 3 interleaved pairs). Without a side thread the views
-    # render on the torch threads
+    # with a side thread, the side thread computes the face adjacency and renders the last view of the batch, then
+    # eq. (4) and its gradient, while the main thread rasterises the other views (measured without gain before the
+    # sparse loss: the side thread taking views after eq. 4, and the reverse split, eq. 4 on the main thread;
+    # 33.2 vs 33.4 ms/step). Without a side thread the views render on the torch threads
     pool = None if side is not None else _render_pool(min(nb, torch.get_num_threads()))
     bar = _progress_bar(cfg.iterations)
     for it in bar:
@@ -866,17 +874,20 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
                 eik = loss * 0.0
             iou = 0.0
         else:
-            if eik_side is not None:  # eq. (4) and its gradient on the side thread while the views render
-                eik_job = eik_side.submit(_eikonal_grads, fld, s, verts, mv.detach(), gen, cfg.lambda_eikonal)
             with clock("render_loss"):
-                pred = _render_views(pool, mv, mf, K_all[idx], T_all[idx], h, w)
-                # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init")
-                per_view = losses.envelope_mask_loss(pred, tgt, alpha)
+                batch = SilhouetteBatch(mv, mf, K_all[idx], T_all[idx], h, w)
+                # eq. (4) and its gradient on the side thread while the views render
+                eik_start = None if eik_side is None else partial(
+                    eik_side.submit, _eikonal_grads, fld, s, verts, mv.detach(), gen, cfg.lambda_eikonal)
+                eik_job = _render_batch(batch, side, pool, eik_start)
+                sil = batch.finish()
+                # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init"); the graph holds only the edge pixels
+                per_view = losses.envelope_mask_loss_sparse(torch.from_numpy(sil.hard_vxhxw), sil.pix_n, sil.delta_n,
+                                                            tgt, alpha)
                 if cfg.loss == "robust":
                     per_view = per_view * losses.robust_view_weights(per_view, cfg.robust_kind, cfg.robust_c)
                 mask_l = per_view.sum()
-                pn, tn = pred.detach().numpy(), tgt.numpy()
-                iou = float(np.mean([silhouette_iou(pn[i], tn[i]) for i in range(nb)]))
+                iou = float(np.mean(_batch_iou(sil.values() > 0.5, masks_in[idx])))
             if eik_job is None:
                 with clock("eikonal"):
                     eik = fld.eikonal(s, verts, mv, gen) if cfg.lambda_eikonal > 0 else mask_l * 0.0
@@ -998,7 +1009,9 @@ def _eikonal_grads(fld: _Field, s: torch.Tensor, verts: torch.Tensor, v0_mx3: to
     eik = fld.eikonal(s, verts, v0_mx3, gen)
     if not eik.requires_grad:
         return eik.detach(), tuple(None for _ in fld.params)
-    return eik.detach(), torch.autograd.grad(lam * eik, fld.params, allow_unused=True)
+    grads = torch.autograd.grad(lam * eik, fld.params, allow_unused=True)
+    # zeros, not None, for the parameters eq. (4) does not reach (the biases): as a double backward gives them
+    return eik.detach(), tuple(torch.zeros_like(p) if g is None else g for p, g in zip(fld.params, grads, strict=True))
 
 
 def _render_pool(n: int) -> ThreadPoolExecutor | None:
@@ -1011,10 +1024,29 @@ def _render_pool(n: int) -> ThreadPoolExecutor | None:
     return _POOLS[n]
 
 
-def _render_views(pool: ThreadPoolExecutor | None, mv: torch.Tensor, mf: torch.Tensor, K: np.ndarray, T: np.ndarray,
-                  h: int, w: int) -> torch.Tensor:
-    """:func:`render_silhouettes` of the (V, ...) views, their compiled work spread over the pool's threads."""
-    return render_silhouettes(mv, mf, K, T, h, w, adjacency_fx3=face_adjacency(mf.numpy(), len(mv)), pool=pool)
+def _render_batch(batch: SilhouetteBatch, side: ThreadPoolExecutor | None, pool: ThreadPoolExecutor | None,
+                  side_next: Callable[[], Future] | None = None) -> Future | None:
+    """Run :meth:`SilhouetteBatch.view` of every view; returns when all are done.
+
+    With a side thread: the side thread computes the face adjacency and renders the last view, then ``side_next()``
+    (which queues more work on it; its future is returned) runs, while this thread rasterises the other views (their
+    hard passes need no adjacency) and then finds their silhouette edges. Without: the views are mapped over
+    ``pool`` (or this thread)."""
+    n = batch.n_views
+    if side is None:
+        adj = face_adjacency(batch.faces_fx3, len(batch.verts))
+        for _ in (map if pool is None or n < 2 else pool.map)(partial(batch.view, adjacency_fx3=adj), range(n)):
+            pass
+        return side_next() if side_next is not None else None
+    adj_job = side.submit(face_adjacency, batch.faces_fx3, len(batch.verts))
+    last_job = side.submit(lambda: batch.view(n - 1, adj_job.result()))
+    nxt = side_next() if side_next is not None else None
+    tri = [batch.rasterize_view(i) for i in range(n - 1)]
+    adj = adj_job.result()
+    for i in range(n - 1):
+        batch.view(i, adj, tri[i])
+    last_job.result()
+    return nxt
 
 
 def _iou_all(verts: np.ndarray, faces: np.ndarray, K_all: np.ndarray, T_all: np.ndarray, masks: np.ndarray) -> float:

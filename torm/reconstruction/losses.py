@@ -22,6 +22,31 @@ def envelope_mask_loss(pred_vxhxw: torch.Tensor, target_vxhxw: torch.Tensor, alp
     return ((pred_vxhxw - alpha * target_vxhxw) ** 2).mean(dim=(-2, -1))
 
 
+def envelope_mask_loss_sparse(hard_vxhxw: torch.Tensor, pix_n: torch.Tensor, delta_n: torch.Tensor,
+                              target_vxhxw: torch.Tensor, alpha: float) -> torch.Tensor:
+    """Eq. (2) (eq. (1) with ``alpha = 1``) of the prediction ``hard + delta at pix``, shape (V,), with a graph
+    only through ``delta_n``: the value and gradient of :func:`envelope_mask_loss` on the dense prediction (up to
+    float rounding) at a cost in proportion to N, not V x H x W.
+
+    Args:
+        hard_vxhxw: (V, H, W) prediction without gradient (e.g. a hard 0/1 silhouette).
+        pix_n: (N,) int64 distinct flat indices into the V x H x W pixels (``(view * H + row) * W + column``).
+        delta_n: (N,) the prediction minus ``hard`` at those pixels (differentiable).
+        target_vxhxw: (V, H, W) target masks in [0, 1].
+        alpha: the envelope coefficient of eq. (2).
+
+    Per pixel, (h + d - a t)^2 = (h - a t)^2 + d (2 (h - a t) + d): the first term is summed over every pixel
+    without a graph, the second over the N pixels.
+    """
+    V, H, W = target_vxhxw.shape
+    with torch.no_grad():
+        base = ((hard_vxhxw - alpha * target_vxhxw) ** 2).sum(dim=(-2, -1))
+        r0 = (hard_vxhxw.reshape(-1)[pix_n] - alpha * target_vxhxw.reshape(-1)[pix_n]).to(delta_n.dtype)
+    extra = delta_n * (2.0 * r0 + delta_n)
+    per_view = torch.zeros(V, dtype=delta_n.dtype, device=delta_n.device).index_add(0, pix_n // (H * W), extra)
+    return (base.to(delta_n.dtype) + per_view) / (H * W)
+
+
 def alpha_schedule(t: float, alpha_max: float = 3.0, alpha_min: float = 1.0, T: float = 500.0) -> float:
     """Eq. (3): alpha_max - (alpha_max - alpha_min) * t / T for 0 <= t < T, then alpha_min.
 
