@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from torm.reconstruction.band_march import BandMarchWork, band_march, interpolate_surface
+from torm.reconstruction.band_march import BandMarchWork, band_march, interpolate_surface, surface_points
 from torm.reconstruction.marching_tets import NUM_TRI_16, marching_tets
 from torm.reconstruction.narrow_band import build_band, build_band_reference
 from torm.reconstruction.tetgrid import build_tet_grid
@@ -58,6 +58,14 @@ def test_band_march_equals_full_marching_tets(seed, rings):
     torch.testing.assert_close(s_c.grad, s_full.grad[vc], rtol=0, atol=0)
     torch.testing.assert_close(v_c.grad, v_full.grad[vc], rtol=0, atol=0)
     assert float(s_full.grad.abs().sum()) == pytest.approx(float(s_c.grad.abs().sum()), rel=1e-6)
+    # the compiled version: the same points and gradients up to rounding, also with the SDF in another unit
+    s_k = s[vc].clone().requires_grad_(True)
+    v_k = verts[vc].clone().requires_grad_(True)
+    mv_k = surface_points(v_k, s_k * 0.01, bm.edge_a_m, bm.edge_b_m)
+    torch.testing.assert_close(mv_k, mv.detach(), rtol=1e-5, atol=1e-7)
+    (mv_k * w).sum().backward()
+    torch.testing.assert_close(v_k.grad, v_c.grad, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(s_k.grad, s_c.grad, rtol=1e-4, atol=1e-5)
 
 
 @pytest.mark.parametrize("case", range(16))

@@ -12,13 +12,15 @@ from torm.reconstruction import losses
 from torm.reconstruction.raster import (
     SilhouetteBatch,
     _compact_pixels,
+    _face_orientation,
     _orientation_kernel,
     _project_kernel,
-    _rasterize_oriented,
+    _rasterize_reference_kernel,
     edge_coverage_reference,
     face_adjacency,
     face_adjacency_reference,
     project_torch,
+    rasterize,
     render_depth,
     render_mask,
     render_silhouette,
@@ -187,16 +189,31 @@ def test_gradient_moves_edge_towards_target():
     assert abs(float(v.grad[0, 0])) < 1e-9 and abs(float(v.grad[3, 0])) < 1e-9
 
 
-def test_rasteriser_orientation_equals_the_reference_kernel():
-    """The rasteriser's per-face orientations are ``_orientation_kernel``'s, also for faces behind the camera."""
+def test_rasteriser_equals_the_reference_kernel():
+    """The span-culling rasteriser gives the reference kernel's triangle ids and depths: a sphere, a random soup of
+    small and large triangles, vertices behind the camera and far outside the image."""
     m, T = _sphere_scene()
     p = m.vertices @ T[:3, :3].T + T[:3, 3]
-    uvz = np.stack([K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2], p[:, 2]], axis=1)
-    uvz[:5, 2] = -1.0  # a few vertices behind the camera: their faces are not rasterised but still oriented
-    faces = np.asarray(m.faces, dtype=np.int64)
-    tri, _, orient = _rasterize_oriented(uvz, faces, H, W)
-    assert np.array_equal(orient, _orientation_kernel(np.ascontiguousarray(uvz[:, :2]), faces))
-    assert set(np.unique(orient)) <= {-1, 0, 1} and (orient == 1).any() and (orient == -1).any()
+    sphere = np.stack([K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2], p[:, 2]], axis=1)
+    rng = np.random.default_rng(0)
+    soup = np.column_stack([rng.uniform(-20, W + 20, 600), rng.uniform(-20, H + 20, 600), rng.uniform(0.5, 2, 600)])
+    soup[:200, :2] = soup[:200:4, :2].repeat(4, axis=0)[:200] + rng.normal(0, 0.7, (200, 2))  # sub-pixel faces
+    soup[5, 2] = -1.0  # behind the camera
+    soup[7, :2] = [1e12, -1e12]  # far outside
+    soup_faces = rng.integers(0, 600, (900, 3))
+    for uvz, faces in ((sphere, np.asarray(m.faces, dtype=np.int64)), (soup, soup_faces)):
+        tri = -np.ones((H, W), dtype=np.int32)
+        depth = np.zeros((H, W), dtype=np.float32)
+        _rasterize_reference_kernel(np.ascontiguousarray(uvz), faces, H, W, tri, depth)
+        got_tri, got_depth = rasterize(uvz, faces, H, W)
+        assert (tri >= 0).sum() > 100
+        assert np.array_equal(got_tri, tri) and np.array_equal(got_depth, depth)
+
+
+def test_face_orientation_equals_the_orientation_kernel():
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [2.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 1], [0, 1, 3]], dtype=np.int64)
+    assert [_face_orientation(uv, faces, f) for f in range(3)] == _orientation_kernel(uv, faces).tolist()
 
 
 def test_compact_pixels_is_unique_with_inverse():
