@@ -13,12 +13,20 @@ from torm.reconstruction.losses import (
     alpha_schedule,
     eikonal_loss_edges,
     envelope_mask_loss,
+    envelope_mask_loss_sparse,
     mask_loss_init,
     robust_view_weights,
 )
 from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.narrowband import narrow_band_hull
-from torm.reconstruction.raster import render_depth, render_mask, render_silhouette, render_silhouettes
+from torm.reconstruction.raster import (
+    SparseSilhouettes,
+    render_depth,
+    render_mask,
+    render_silhouette,
+    render_silhouettes,
+    render_silhouettes_sparse,
+)
 from torm.reconstruction.tetgrid import TetGrid, build_tet_grid
 from torm.reconstruction.visual_hull import ProjectiveSDF, visual_hull_sdf
 
@@ -31,11 +39,13 @@ __all__ = [
     "narrow_band_hull",
     "DMTetResult",
     "ReconstructionConfig",
+    "SparseSilhouettes",
     "TetGrid",
     "alpha_schedule",
     "build_tet_grid",
     "eikonal_loss_edges",
     "envelope_mask_loss",
+    "envelope_mask_loss_sparse",
     "mask_loss_init",
     "marching_tets",
     "optimise_dmtet",
@@ -44,6 +54,7 @@ __all__ = [
     "render_mask",
     "render_silhouette",
     "render_silhouettes",
+    "render_silhouettes_sparse",
     "robust_view_weights",
     "visual_hull_sdf",
 ]
