@@ -45,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from torm.bench import BenchConfig, run_benchmark  # noqa: E402
 from torm.bench.report import load_run  # noqa: E402
-from torm.bench.results import package_versions  # noqa: E402
+from torm.bench.results import git_revision, package_versions  # noqa: E402
 from torm.bench.spec import DEFAULT_TRIAL_FN  # noqa: E402
 from torm.bench.stats import difference_interval, wilson_interval  # noqa: E402
 from torm.errors import BenchmarkError  # noqa: E402
@@ -68,7 +68,8 @@ PAPER: dict[str, dict[str, Any]] = {
     "rw7": {"occ": 0.46, "torm": (9, 10), "graspnet": None},
     "rw8": {"occ": 0.42, "torm": (8, 10), "graspnet": None},
 }
-#: The paper's named failure modes (Sec. IV-E) and the simulator's outcome categories that correspond to them.
+#: Failure kinds (the paper's named failure modes, Sec. IV-E, plus the ones a blind loop adds) and the simulator's
+#: outcome categories that correspond to them. ``phantom`` counts attempts (rows of ``attempts``), the others objects.
 FAILURE_MODES: list[tuple[str, str, tuple[str, ...]]] = [
     ("slip", "occasional gripper slippage on the smooth glass surfaces (RW3, RW4)",
      ("slipped_during_lift", "dropped_during_translation")),
@@ -76,10 +77,18 @@ FAILURE_MODES: list[tuple[str, str, tuple[str, ...]]] = [
                   "target", ("collision_on_approach",)),
     ("pruned", "conservative collision checking in dense scenes (RW7, RW8) prunes viable candidates, leaving "
                "objects without a grasp", ("no_grasp_found", "unreachable")),
-    ("not named in the paper", "other outcomes",
-     ("not_reconstructed", "not_released", "physics_error", "other", "timeout", "crashed", "error",
+    ("not seen", "not named in the paper: no reconstruction matched the object", ("not_reconstructed",)),
+    ("phantom", "not named in the paper: an attempt at a reconstructed object that is not there (per attempt)",
+     ("phantom_attempt",)),
+    ("other", "not named in the paper: other outcomes",
+     ("not_released", "arm_tracking_error", "physics_error", "other", "timeout", "crashed", "error",
       "reconstruction_failed", "config_error", "out_of_memory")),
 ]
+#: The paper's failed TORM trials per failure kind, attributed by the scenarios the paper names as examples
+#: (failed trials: RW3 1, RW4 1 -> slip; RW6 4 -> displaced; RW7 1, RW8 2 -> pruned). The paper gives examples,
+#: not counts, so this is an attribution, stated as such in the report.
+PAPER_FAILED_TRIALS: dict[str, int] = {"slip": 2, "displaced": 4, "pruned": 3, "not seen": 0, "phantom": 0,
+                                       "other": 0}
 
 
 # ------------------------------------------------------------------------------------------------ numbers
@@ -148,8 +157,7 @@ def scenario_table(rows: list[dict[str, Any]], methods: list[str]) -> list[dict[
                 t = entry["torm"]["trials"]
                 d, lo, hi = difference_interval(t["k"], t["n"], *paper["torm"])
                 entry["gap_torm"] = {"sim_minus_paper": d, "newcombe95": [lo, hi],
-                                     "paper_inside_sim_interval": t["wilson95"][0] <= paper["torm"][0] / 10
-                                     <= t["wilson95"][1]}
+                                     "significant": bool(lo > 0 or hi < 0)}
         out.append(entry)
     return out
 
@@ -175,19 +183,29 @@ def object_table(rows: list[dict[str, Any]], methods: list[str]) -> dict[str, di
 
 
 def failure_table(rows: list[dict[str, Any]], methods: list[str]) -> list[dict[str, Any]]:
-    """The paper's named failure modes beside the simulator's outcome counts (objects), with where they happened."""
+    """Failure kinds beside the paper's: per method the objects (attempts, for ``phantom``) with that kind of
+    failure, the trials that had one, and where they happened."""
     out = []
     for key, text, outcomes in FAILURE_MODES:
-        e: dict[str, Any] = {"mode": key, "paper": text, "outcomes": list(outcomes)}
+        e: dict[str, Any] = {"mode": key, "paper": text, "outcomes": list(outcomes),
+                             "paper_failed_trials": PAPER_FAILED_TRIALS.get(key)}
         for m in methods:
-            hits = [(r["scenario"], o["name"], o["outcome"]) for r in rows if r["method"] == m
-                    for o in r.get("objects", []) if o.get("outcome") in outcomes]
+            unit = "attempts" if key == "phantom" else "objects"
+            hits, trials = [], 0
+            for r in rows:
+                if r["method"] != m:
+                    continue
+                mine = [(r["scenario"], o.get("name", f"reconstruction {o.get('label')}"), o["outcome"])
+                        for o in r.get(unit) or [] if o.get("outcome") in outcomes]
+                hits += mine
+                trials += bool(mine)
             by_outcome: dict[str, int] = defaultdict(int)
             where: dict[str, int] = defaultdict(int)
             for sc, name, oc in hits:
                 by_outcome[oc] += 1
                 where[f"{sc}:{name}"] += 1
-            e[m] = {"objects": len(hits), "by_outcome": dict(by_outcome), "where": dict(sorted(where.items()))}
+            e[m] = {unit: len(hits), "count": len(hits), "trials": trials, "by_outcome": dict(by_outcome),
+                    "where": dict(sorted(where.items()))}
         out.append(e)
     return out
 
@@ -229,7 +247,12 @@ def summarise(main_rows: list[dict[str, Any]], sens: dict[str, list[dict[str, An
     if "torm" in totals:
         t = totals["torm"]["trials"]
         d, lo, hi = difference_interval(t["k"], t["n"], paper_k, 10 * len(PAPER))
-        totals["gap_torm"] = {"sim_minus_paper": d, "newcombe95": [lo, hi]}
+        totals["gap_torm"] = {"sim_minus_paper": d, "newcombe95": [lo, hi], "significant": bool(lo > 0 or hi < 0)}
+    for m in methods:
+        ms = [r for r in main_rows if r["method"] == m]
+        if ms:
+            totals[m]["phantom_attempts"] = sum(int(r.get("n_phantom_attempts") or 0) for r in ms)
+            totals[m]["spurious_objects"] = sum(len(r.get("spurious_objects") or []) for r in ms)
     return {"scenarios": scen, "totals": totals, "objects": object_table(main_rows, methods),
             "failures": failure_table(main_rows, methods),
             "sensitivity": sensitivity_table(sens, sens_methods) if sens else [],
@@ -254,7 +277,8 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
          f"{cfg['trials']} trials per scenario and method (the paper's 10), realism profile **measured** "
          f"(`sim/REALISM.md`: contact, grip force, object mass, calibration and execution errors drawn per trial from "
          f"sourced ranges; nothing fitted to Table III). Overrides: {', '.join(f'`{o}`' for o in cfg['overrides'])}. "
-         f"Date {doc['date']}; load average before {doc['loadavg_before']} (contended: "
+         f"Date {doc['date']}, git {((doc.get('git') or {}).get('commit') or '?')[:7]}; load average before "
+         f"{doc['loadavg_before']} (contended: "
          f"**{str(doc['contended']).lower()}**). What produced the rows:", ""]
     L += [f"- {c}" for c in ctx_lines]
     L += ["", "## Per scenario, in the paper's unit",
@@ -280,12 +304,19 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
              + ("–" if not gap else f"{_pp(gap['sim_minus_paper'])} [{_pp(gap['newcombe95'][0])}, "
                                     f"{_pp(gap['newcombe95'][1])}]") + " |")
     if gap:
-        inside = [e["scenario"].upper() for e in s["scenarios"]
-                  if e.get("gap_torm", {}).get("paper_inside_sim_interval")]
-        L += ["", f"Gap over all scenarios: the simulated TORM trial success is {_pp(gap['sim_minus_paper'])} from "
-                  f"the paper's 88.8 % (95 % interval {_pp(gap['newcombe95'][0])} to {_pp(gap['newcombe95'][1])}). "
-                  f"The paper's rate lies inside the simulation's Wilson interval in "
-                  f"{len(inside)}/{len(s['scenarios'])} scenarios ({', '.join(inside) or 'none'})."]
+        sig = [e for e in s["scenarios"] if e.get("gap_torm", {}).get("significant")]
+        sig_list = ", ".join(f"{e['scenario'].upper()} {_pp(e['gap_torm']['sim_minus_paper'])}" for e in sig)
+        more = "more optimistic" if gap["sim_minus_paper"] >= 0 else "more pessimistic"
+        verdict = "a significant" if gap["significant"] else "not a significant"
+        L += ["", f"**The simulation is {abs(100 * gap['sim_minus_paper']):.0f} pp {more} than the paper's robot** "
+                  f"(TORM trial success pooled over the scenarios, sim minus paper, Newcombe 95 % interval "
+                  f"{_pp(gap['newcombe95'][0])} to {_pp(gap['newcombe95'][1])}; {verdict} difference at this sample "
+                  f"size). Per scenario, the difference is significant (its 95 % interval excludes 0) in "
+                  f"{len(sig)}/{len(s['scenarios'])} scenarios" + (f" ({sig_list})" if sig else "") + "."]
+    L += ["", "Phantom attempts (attempts at reconstructed objects that were not there) and spurious reconstructions "
+              "(matching no real object), all trials: " + "; ".join(
+                  f"{METHOD_NAMES[m]} {t[m].get('phantom_attempts', 0)} / {t[m].get('spurious_objects', 0)}"
+                  for m in methods) + "."]
     L += ["", "## Per object", "",
           "Objects picked / attempted over all scenarios (Wilson 95 %). The paper reports GraspNet (an RGB-D "
           "grasp network, the depth-camera baseline's counterpart) per object where it did not fail outright.", "",
@@ -296,17 +327,22 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
                  + f" | {_cell(e.get('paper_graspnet'))} |")
     L += ["", "Object success per method: " + "; ".join(f"{METHOD_NAMES[m]} {_cell(t[m]['objects'])}"
                                                         for m in methods) + ".",
-          "", "## Failures beside the paper's named failure modes", "",
-          "| paper's failure mode | simulator outcomes | " + " | ".join(METHOD_NAMES[m] for m in methods) + " |",
-          "|---|---|" + "---|" * len(methods)]
+          "", "## Failure kinds beside the paper's", "",
+          "Objects with each kind of failure (attempts, for phantom) and, in parentheses, the trials that had one. "
+          "The paper's column: its failed TORM trials attributed by the scenarios it names as examples (RW3, RW4 "
+          "slip; RW6 displaced; RW7, RW8 pruned): an attribution, the paper gives examples, not counts.", "",
+          "| failure kind | simulator outcomes | paper TORM (failed trials) | "
+          + " | ".join(METHOD_NAMES[m] for m in methods) + " |",
+          "|---|---|---|" + "---|" * len(methods)]
     for e in s["failures"]:
         cells = []
         for m in methods:
             c = e.get(m, {})
-            where = ", ".join(f"{w} {n}" for w, n in c.get("where", {}).items())
-            cells.append(f"{c.get('objects', 0)}" + (f" ({where})" if where else ""))
+            where = ", ".join(f"{w} {n}" for w, n in list(c.get("where", {}).items())[:6])
+            cells.append(f"{c.get('count', 0)} ({c.get('trials', 0)} trials)" + (f": {where}" if where else ""))
         more = "..." if len(e["outcomes"]) > 3 else ""
-        L.append(f"| {e['mode']}: {e['paper']} | {', '.join(e['outcomes'][:3])}{more} | " + " | ".join(cells) + " |")
+        L.append(f"| {e['mode']}: {e['paper']} | {', '.join(e['outcomes'][:3])}{more} | "
+                 f"{e.get('paper_failed_trials', '–')} | " + " | ".join(cells) + " |")
     if s["sensitivity"]:
         sm = [m for m in cfg["sensitivity_methods"] if any(m in e for e in s["sensitivity"])]
         L += ["", "## Sensitivity: success with one realism factor group drawn, the others ideal", "",
@@ -462,7 +498,7 @@ def main(argv: list[str] | None = None) -> int:
                    "workers": args.workers, "threads": args.threads, "scenarios": args.scenario},
         "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "loadavg_before": [round(x, 2) for x in load_before], "contended": bool(load_before[0] > 0.5 * cores),
-        "versions": package_versions(), "paper": PAPER,
+        "versions": package_versions(), "git": git_revision(), "paper": PAPER,
         "run_folders": {k: str(v[1]) for k, v in plan.items()},
         "rows": {k: len(v) for k, v in rows.items()},
         "summary": summarise(main_rows, sens, methods, sens_methods),
@@ -472,8 +508,9 @@ def main(argv: list[str] | None = None) -> int:
             "the same layouts; a factor group draws the same values alone as in the full profile.",
             "The simulated images are MuJoCo rasterisations with ground-truth masks unless a segmenter/renderer "
             "pass-through says otherwise; the paper's TORM used Grounding DINO + SAM on real D455 images.",
-            "Per-object failure isolation in the reconstruction (issue 12 item 3) is not in these rows: one object "
-            "failing a reconstruction check fails the whole scene here.",
+            "The decision loop is blind (torm/loop.py): it attempts every reconstructed object, phantoms included, "
+            "with the declared table height and fixtures; the judge (sim/judge.py) scores each attempt from the "
+            "physics afterwards. Matching reconstructions to real objects is for reporting only.",
         ],
     }
     (out_dir / f"fidelity{tag}.json").write_text(json.dumps(doc, indent=1) + "\n")

@@ -34,6 +34,7 @@ import mujoco
 import numpy as np
 
 from sim.force_map import measured_pad_force, pad_distance
+from torm.backend.calibration import Calibration
 from torm.backend.protocol import ArmState, GripperState
 from torm.backend.safety import SafeArm, SafetyLimits
 from torm.errors import ConfigError, SceneError, UnknownNameError
@@ -560,11 +561,15 @@ class SimBackend:
         """Render only the layout views ``indices`` (of ``n_views``) with ``channels`` (default: the rig's)."""
         return self._report(self._get_rig().capture(n_views, indices=indices, channels=channels))
 
-    def known_obstacles(self) -> np.ndarray | None:
-        """(M, 3) surface points of the scene's static fixture (rack, tray) in the world (m), or None: what a lab
-        knows about its fixtures from their drawings. The planner keeps the gripper off them."""
+    def calibration(self) -> Calibration:
+        """What the simulated cell declares, as a lab would: the table height of the scene description (stated
+        error 0: the scene builds the table exactly there) and the scenario's fixture with its drawing (boxes)
+        and the pose it was placed at. The decision loop gets nothing else about the scene."""
+        from sim.world import TABLE_HEIGHT
+
         fx = getattr(self.world, "fixture", None)
-        return None if fx is None else fx.surface_points()
+        return Calibration(float(TABLE_HEIGHT), 0.0, f"scenario {self.world.scenario!r} declaration",
+                           () if fx is None else (fx.declaration(),))
 
     def realism_summary(self) -> dict[str, Any]:
         """What the realism record did in this trial so far: per-capture view jitter, motions and joint errors."""

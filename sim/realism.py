@@ -7,6 +7,10 @@
   Its record holds no values, so nothing is changed and results are those of the world without realism.
 - ``measured``: every parameter of :class:`MeasuredRanges` drawn uniformly from a range whose source is
   named in :data:`SOURCES` (the table in ``sim/REALISM.md`` mirrors them).
+- ``stress``: **not realism**: every parameter at the worst end of its sourced range pushed ``world.stress`` times
+  further (:meth:`MeasuredRanges.stressed`; 1 = the worst sourced value). For margin sweeps
+  (``benchmarks/stress.py``): how far beyond the sources a factor can go before picks fail. No value of this
+  profile has a source, and none is a default.
 
 Parameters come in factor groups (:data:`FACTORS`); ``world.factors`` may restrict the draws to some groups,
 the others staying ideal (the fidelity report's sensitivity table runs each group alone). Each group draws
@@ -45,7 +49,7 @@ if TYPE_CHECKING:
     from torm.types import Capture
 
 #: Realism profiles (``world.realism``); mirrors ``torm.pipeline.REALISM_PROFILES``.
-PROFILES: tuple[str, ...] = ("ideal", "measured")
+PROFILES: tuple[str, ...] = ("ideal", "measured", "stress")
 #: Factor groups of a profile (``world.factors``); mirrors ``torm.pipeline.REALISM_FACTORS``.
 FACTORS: tuple[str, ...] = ("contact", "grip_force", "objects", "calibration", "execution")
 
@@ -151,6 +155,33 @@ class MeasuredRanges:
         return out
 
 
+    def stressed(self, k: float) -> MeasuredRanges:
+        """Every range collapsed to its worst end pushed ``k`` (>= 1) times further (:data:`WORSE`): a value that
+        is worse when lower is divided by ``k`` (pad friction 0.30 -> 0.15 at k = 2), one worse when higher has its
+        deviation multiplied by ``k`` (hand-eye 1.5 mm -> 3 mm; mass scale 1.05 -> 1.10; focal error +0.87 % ->
+        +1.74 %, the sign fixed to +). ``k = 1`` is the worst end of each sourced range."""
+        if not (math.isfinite(k) and k >= 1):
+            raise ConfigError(f"stress multiplier must be a finite number >= 1 (1 = the worst sourced value), got {k}")
+        out = {}
+        for f in dataclasses.fields(self):
+            r: Range = getattr(self, f.name)
+            if WORSE[f.name] == "lower":
+                v = r.lo / k
+            elif f.name == "hollow_mass_scale":
+                v = 1.0 + (r.hi - 1.0) * k
+            else:
+                v = r.hi * k
+            out[f.name] = Range(v, v, r.unit, r.source)
+        return MeasuredRanges(**out)
+
+
+#: Which direction makes each parameter of :class:`MeasuredRanges` harder for a pick (stress sweeps).
+WORSE: dict[str, str] = {
+    "pad_friction": "lower", "pad_torsion_lever": "lower", "object_friction": "lower", "grip_force": "lower",
+    "hollow_mass_scale": "higher", "hand_eye_translation": "higher", "hand_eye_rotation": "higher",
+    "arm_repeatability": "higher", "focal_error": "higher", "principal_point_error": "higher", "latency": "higher",
+}
+
 MEASURED = MeasuredRanges()
 
 
@@ -160,6 +191,7 @@ class RealismRecord:
 
     Attributes:
         profile, seed, factors: what produced the record (``factors``: the groups that were drawn).
+        stress: the stress multiplier (profile ``stress`` only).
         pad_friction: sliding mu of the gripper pads (the pads have contact priority, so it governs pad contacts).
         pad_torsional: torsional friction coefficient of the pads (m).
         object_friction: sliding mu of the objects' collision geoms and of the table top.
@@ -177,6 +209,7 @@ class RealismRecord:
     profile: str = "ideal"
     seed: int = 0
     factors: tuple[str, ...] = ()
+    stress: float | None = None
     pad_friction: float | None = None
     pad_torsional: float | None = None
     object_friction: float | None = None
@@ -208,7 +241,7 @@ class RealismRecord:
     def is_ideal(self) -> bool:
         """True when the record changes nothing."""
         return all(getattr(self, f.name) is None for f in dataclasses.fields(self)
-                   if f.name not in ("profile", "seed", "factors"))
+                   if f.name not in ("profile", "seed", "factors", "stress"))
 
     @property
     def T_cam_err(self) -> np.ndarray:
@@ -244,7 +277,7 @@ def _unit_vector(rng: np.random.Generator) -> np.ndarray:
 
 
 def sample_realism(profile: str, seed: int, hollow: Sequence[bool] = (), factors: Sequence[str] = (),
-                   ranges: MeasuredRanges = MEASURED) -> RealismRecord:
+                   ranges: MeasuredRanges = MEASURED, stress: float = 1.0) -> RealismRecord:
     """Draw the realism record of one trial.
 
     Args:
@@ -253,6 +286,7 @@ def sample_realism(profile: str, seed: int, hollow: Sequence[bool] = (), factors
         hollow: per scenario object (instance order), whether it is thin-walled glassware (mass tolerance).
         factors: the factor groups to draw (empty: all of :data:`FACTORS`); the others stay ideal.
         ranges: the ranges of the ``measured`` profile.
+        stress: profile ``stress`` only: the multiplier of :meth:`MeasuredRanges.stressed` (>= 1).
     """
     if profile not in PROFILES:
         raise UnknownNameError("world.realism", profile, PROFILES)
@@ -262,8 +296,8 @@ def sample_realism(profile: str, seed: int, hollow: Sequence[bool] = (), factors
     if profile == "ideal":
         return RealismRecord(profile="ideal", seed=int(seed))
     active = tuple(f for f in FACTORS if not factors or f in factors)
-    r = ranges
-    kw: dict[str, Any] = {}
+    r = ranges.stressed(stress) if profile == "stress" else ranges
+    kw: dict[str, Any] = {"stress": float(stress)} if profile == "stress" else {}
     if "contact" in active:
         g = _stream(seed, FACTORS.index("contact"))
         mu = r.pad_friction.draw(g)

@@ -1,5 +1,6 @@
 """The full pick on the simulated robot: success on a glass cylinder, a gripper that never closes, unreachable
-candidates and a physics blow-up, each judged by the paper's success test."""
+candidates and a physics blow-up. The pick runs blind; the judge (sim/judge.py) scores it with the paper's success
+test from the physics."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 
 from sim.backend import SimBackend
+from sim.judge import PickJudge
 from sim.world import build_world
 from torm.execution.ik import IKConfig
 from torm.execution.pick import (
@@ -47,6 +49,16 @@ def _cylinder_grasp(backend) -> Grasp:
     return _grasp_at(T[:3, 3] + [0.0, 0.0, 0.6 * h], object_id=obj.instance_id)
 
 
+def judged_pick(backend, candidates, direction, **kw):
+    """``execute_pick`` watched by the judge: the judged result (the loop's own when nothing moved)."""
+    judge = PickJudge(backend)
+    try:
+        res = execute_pick(backend, candidates, direction, observer=judge, **kw)
+    finally:
+        judge.close()
+    return judge.verdicts.get(id(res), res)
+
+
 def _direction(backend) -> np.ndarray:
     p = backend.ground_truth.object_poses()[1][:2, 3]
     return free_direction(p, [], backend.world.workspace_bounds)
@@ -58,7 +70,7 @@ def test_pick_of_the_glass_cylinder_succeeds_after_skipping_unreachable_candidat
     far = _grasp_at([3.0, 0.0, 0.3])  # outside the safety box and the arm's reach
     edge = _grasp_at([0.98, 0.58, 0.05])  # inside the box, beyond the arm's reach
     direction = _direction(backend)
-    res = execute_pick(backend, [far, edge, _cylinder_grasp(backend)], direction)
+    res = judged_pick(backend, [far, edge, _cylinder_grasp(backend)], direction)
     assert res.outcome is Outcome.SUCCESS, res.as_dict()
     assert res.candidate_index == 2 and [i for i, _ in res.unreachable] == [0, 1]
     j = res.judgement
@@ -84,9 +96,9 @@ def test_gripper_that_never_closes_slips(backend, monkeypatch):
 
     monkeypatch.setattr(g, "move", open_only)
     rest = backend.ground_truth.object_poses()[1][:3, 3]
-    res = execute_pick(backend, [_cylinder_grasp(backend)], _direction(backend))
-    assert res.outcome is Outcome.SLIPPED, res.as_dict()
-    assert res.judgement.lift < 0.01  # the glass stayed on the table
+    res = judged_pick(backend, [_cylinder_grasp(backend)], _direction(backend))
+    assert res.outcome is Outcome.SLIPPED and res.loop_outcome is Outcome.SLIPPED, res.as_dict()
+    assert res.target_id == 1 and res.judgement.lift < 0.01  # the glass stayed on the table
     assert np.linalg.norm(backend.ground_truth.object_poses()[1][:3, 3] - rest) < 0.01
     assert "translate" not in [p.name for p in res.phases]  # aborted after the failed lift
 
@@ -135,21 +147,22 @@ def test_physics_blow_up_is_reported(backend):
 
     backend.add_step_callback(explode)
     try:
-        res = execute_pick(backend, [_cylinder_grasp(backend)], _direction(backend))
+        res = judged_pick(backend, [_cylinder_grasp(backend)], _direction(backend))
     finally:
         backend.remove_step_callback(explode)
     assert res.outcome is Outcome.PHYSICS, res.as_dict()
 
 
 def test_fingers_driven_into_the_glass_is_a_collision(backend):
-    """A side approach with the jaws opened only 3 cm shoves the 6 cm glass: caught before closing."""
+    """A side approach with the jaws opened only 3 cm shoves the 6 cm glass: the robot cannot tell and goes on;
+    the judge saw the glass move before the fingers closed."""
     T = backend.ground_truth.object_poses()[1]
     G = np.eye(4)
     G[:3, 3] = T[:3, 3] + [0.0, 0.0, 0.09]  # approach along +x, closing along y, near the top (a lower side
     # grasp would drive the wrist into the table: the robot collision check rejects it)
-    res = execute_pick(backend, [Grasp(G, width=0.02, score=1.0, object_id=1, depth=0.01875)], np.array([0.0, 1.0]))
-    assert res.outcome is Outcome.COLLISION, res.as_dict()
-    assert "close" not in [p.name for p in res.phases] and res.phases[-1].name == "retreat"
+    res = judged_pick(backend, [Grasp(G, width=0.02, score=1.0, object_id=1, depth=0.01875)], np.array([0.0, 1.0]))
+    assert res.outcome is Outcome.COLLISION and res.target_id == 1, res.as_dict()
+    assert "moved before the gripper closed" in res.message
     assert np.linalg.norm(backend.ground_truth.object_poses()[1][:3, 3] - T[:3, 3]) > 0.01
 
 

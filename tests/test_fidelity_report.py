@@ -48,12 +48,14 @@ def test_fidelity_writes_tables_beside_the_paper(report: Path) -> None:
                                                           "wilson95": s["objects"]["cylinder"]["paper_graspnet"][
                                                               "wilson95"]}
     modes = [f["mode"] for f in s["failures"]]
-    assert modes[:3] == ["slip", "displaced", "pruned"]
+    assert modes == ["slip", "displaced", "pruned", "not seen", "phantom", "other"]
+    assert [f["paper_failed_trials"] for f in s["failures"]] == [2, 4, 3, 0, 0, 0]  # the paper's 9 failed trials
     settings = [x["setting"] for x in s["sensitivity"]]
     assert settings == ["ideal", "contact alone", "grip_force alone", "objects alone", "calibration alone",
                         "execution alone", "all (measured)"]
     md = (res / "fidelity_seg-noisy.md").read_text()
-    for heading in ("Per scenario, in the paper's unit", "Per object", "paper's named failure modes", "Sensitivity"):
+    for heading in ("Per scenario, in the paper's unit", "Per object", "Failure kinds beside the paper's",
+                    "Sensitivity"):
         assert heading in md
     # every sensitivity run folder went through the resumable runner
     runs = report / "runs"

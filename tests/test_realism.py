@@ -241,3 +241,25 @@ def test_record_validation():
     d = sample_realism("measured", 1, [True]).as_dict()
     assert math.isclose(d["hand_eye_rotation_deg"], math.degrees(np.linalg.norm(d["hand_eye_rotvec"])))
     assert mujoco is not None
+
+
+def test_stress_profile_pushes_each_factor_beyond_the_worst_sourced_value():
+    from sim.realism import MEASURED, sample_realism
+    from torm.pipeline import WorldSettings
+
+    x1, x2 = MEASURED.stressed(1), MEASURED.stressed(2)
+    assert x1.pad_friction.lo == x1.pad_friction.hi == MEASURED.pad_friction.lo  # x1 = worst sourced end
+    assert x2.pad_friction.lo == pytest.approx(MEASURED.pad_friction.lo / 2)  # lower is worse: halved
+    assert x2.grip_force.lo == pytest.approx(10.0)
+    assert x2.hand_eye_translation.lo == pytest.approx(2 * MEASURED.hand_eye_translation.hi)  # higher is worse
+    assert x2.hollow_mass_scale.lo == pytest.approx(1.10)  # the deviation from 1 doubles
+    rec = sample_realism("stress", 3, [True], ("contact",), stress=4.0)
+    assert rec.profile == "stress" and rec.stress == 4.0 and rec.factors == ("contact",)
+    assert rec.pad_friction == pytest.approx(0.075) and rec.object_friction == pytest.approx(0.10)
+    assert rec.grip_force_n is None and rec.hand_eye_translation is None  # other groups stay ideal
+    with pytest.raises(ConfigError, match=">= 1"):
+        MEASURED.stressed(0.5)
+    with pytest.raises(ConfigError, match="only applies with world.realism=stress"):
+        WorldSettings(realism="measured", stress=2.0)
+    with pytest.raises(ConfigError, match=">= 1"):
+        WorldSettings(realism="stress", stress=0.0)

@@ -125,7 +125,7 @@ def test_planner_keeps_the_gripper_off_a_known_rack():
 
     w = build_world("lab4", seed=0)
     b = SimBackend(w)
-    obstacles = b.known_obstacles()
+    obstacles = b.calibration().obstacle_points()
     assert obstacles is not None and len(obstacles) > 1000
     clouds, meshes = oracle_point_clouds(b.ground_truth.object_meshes(), 512, np.random.default_rng(0))
     g = GripperGeometry.from_robot_config({k: v for k, v in vars(w.robot_config.gripper.geometry).items()})

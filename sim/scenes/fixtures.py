@@ -16,10 +16,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from torm.errors import UnknownNameError
+
+if TYPE_CHECKING:
+    from torm.backend.calibration import FixtureDeclaration
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]  # (centre xyz, half extents xyz), m
 
@@ -44,18 +48,9 @@ class Fixture:
 
     def surface_points(self, spacing: float = 0.004) -> np.ndarray:
         """(M, 3) points on every box face, at most ``spacing`` apart, fixture frame (m)."""
-        pts = []
-        for c, h in self.boxes:
-            c, h = np.asarray(c), np.asarray(h)
-            for axis in range(3):
-                u, v = [a for a in range(3) if a != axis]
-                nu = max(2, int(np.ceil(2 * h[u] / spacing)) + 1)
-                nv = max(2, int(np.ceil(2 * h[v] / spacing)) + 1)
-                gu, gv = np.meshgrid(np.linspace(-h[u], h[u], nu), np.linspace(-h[v], h[v], nv), indexing="ij")
-                for sgn in (-1.0, 1.0):
-                    p = np.zeros((gu.size, 3))
-                    p[:, u], p[:, v], p[:, axis] = gu.ravel(), gv.ravel(), sgn * h[axis]
-                    pts.append(p + c)
+        from torm.backend.calibration import box_surface_points
+
+        pts = [box_surface_points(np.asarray(c), np.asarray(h), spacing) for c, h in self.boxes]
         return np.unique(np.round(np.concatenate(pts), 6), axis=0)
 
 
@@ -126,6 +121,12 @@ class PlacedFixture:
     @property
     def name(self) -> str:
         return self.fixture.name
+
+    def declaration(self) -> FixtureDeclaration:
+        """What a lab declares about this fixture: its boxes (from its drawing) and its pose on the table."""
+        from torm.backend.calibration import FixtureDeclaration
+
+        return FixtureDeclaration(self.name, self.T_world_fixture, boxes=self.fixture.boxes)
 
     def surface_points(self, spacing: float = 0.004) -> np.ndarray:
         """(M, 3) points on its faces in the world frame (m): the known obstacle the planner avoids."""

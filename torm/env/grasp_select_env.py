@@ -334,8 +334,15 @@ class TormGraspSelectEnv(gym.Env):
         xy = self._centroid[:2]
         others_xy = [c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in self._clouds.items() if k != self._target]
         dirs = free_directions(xy, others_xy, self._world.workspace_bounds, cfg.pick.translate_distance)
-        res = execute_pick(self._backend, [self._grasps[i]], dirs, cfg.criteria, cfg.pick, ik=self._ik,
-                           tool=self._tool)
+        from sim.judge import PickJudge
+
+        judge = PickJudge(self._backend, cfg.criteria, cfg.pick)  # the reward is the judge's verdict
+        try:
+            loop_res = execute_pick(self._backend, [self._grasps[i]], dirs, cfg.pick, ik=self._ik, tool=self._tool,
+                                    observer=judge)
+        finally:
+            judge.close()
+        res = judge.verdicts.get(id(loop_res), loop_res)
         pick = res.as_dict()  # without wall-clock times, so equal seeds and actions give equal infos
         pick.pop("wall_time_s", None)
         pick["phases"] = [{"name": p["name"], "sim_s": p["sim_s"]} for p in pick["phases"]]

@@ -11,12 +11,12 @@ pre-grasp (``pre_grasp_distance`` back along the approach; through a transit pos
 approach on a straight line, close, lift ``lift_height``, translate ``translate_distance`` horizontally, lower
 back to the grasp height (+ ``place_clearance``), release and retreat along the approach axis.
 
-Judgement. In simulation (``backend.ground_truth`` present) the object's position relative to the TCP is
-sampled during lift and translation into a :class:`~torm.execution.success.PickTrace` and judged by
-:func:`~torm.execution.success.judge_pick`; the target moving more than ``approach_tolerance`` (or a neighbour
-more than ``neighbour_tolerance``) before the fingers close is ``collision_on_approach``. On the real robot
-(no ground truth) success means the gripper still detects the object after lift and after translation,
-optionally confirmed by ``operator_confirm``.
+Blind execution. The pick reads only what a real robot has: the arm's state and the gripper's object
+detection. After the lift and after the translation the gripper must still report an object, else the pick
+stops there and opens (``slipped_during_lift`` / ``dropped_during_translation`` as the robot believes it);
+otherwise it lowers, releases, retreats and believes it succeeded (optionally confirmed by ``operator_confirm``).
+What really happened is not decided here: in simulation a :class:`~torm.execution.observer.PickObserver` (the
+judge in ``sim/judge.py``) watches the phases and scores the attempt from the physics afterwards.
 
 Tracking check. After every motion the measured TCP is compared with the forward kinematics of the last
 commanded joints; the error is recorded per motion in :attr:`PickResult.tcp_errors` (a warning above
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +41,7 @@ from torm.backend.safety import SafetyError
 from torm.errors import ConfigError, ExecutionError
 from torm.execution.errors import PhysicsError
 from torm.execution.ik import IKSolver
+from torm.execution.observer import PickObserver
 from torm.execution.pick_config import PickConfig
 from torm.execution.pick_plan import (
     ROTATION_RADIUS,
@@ -55,7 +56,7 @@ from torm.execution.pick_plan import (
     time_line,
 )
 from torm.execution.robot_collision import RobotCollisionChecker
-from torm.execution.success import Judgement, Outcome, PickTrace, SuccessCriteria, judge_pick
+from torm.execution.success import Judgement, Outcome, PickTrace
 from torm.execution.trajectory import chain_waypoints
 from torm.types import Grasp
 
@@ -66,6 +67,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: Wait after the release before the pick ends (s): the released object comes to rest (judged afterwards).
+SETTLE_AFTER_RELEASE_S = 0.2
 
 
 def _limits_of(arm: Any, cfg: PickConfig) -> tuple[np.ndarray, np.ndarray, float]:
@@ -91,17 +95,20 @@ class PickResult:
     """What happened in one pick.
 
     Attributes:
-        outcome: the category (:class:`Outcome`).
+        outcome: the category (:class:`Outcome`): what the robot believes after :func:`execute_pick`, what the judge
+            decided once a judge scored it (``sim.judge.PickJudge.verdict``).
+        loop_outcome: what the robot believed, kept when a judge replaced :attr:`outcome` (None before).
         object_id: the target object's instance id (-1 when there was no candidate).
         grasp: the executed grasp candidate (None when none was reachable).
         candidate_index: its index in the candidate list (-1 when none).
         flipped: whether the grasp was executed rotated 180 deg about its approach axis.
         translate_direction: (2,) unit horizontal direction of the translation used (None when none was planned).
         unreachable: (index, reason) for the candidates skipped as unreachable.
-        judgement: the success test's measurements (simulation only).
-        trace: the sampled object/TCP trace (simulation only).
+        judgement: the success test's measurements (filled by the judge, simulation only).
+        trace: the sampled object/TCP trace (filled by the judge, simulation only).
         phases: per-phase timings.
-        disturbed: other objects' displacement (m) between the start and the end of the pick (simulation only).
+        disturbed: other objects' displacement (m) between the start and the end of the pick (judge only).
+        target_id: the real object the judge found the attempt acted on (None: none, a phantom attempt).
         neighbours_disturbed: whether any of them moved more than ``PickConfig.neighbour_tolerance``.
         gripper_width: pad gap after closing (m), None if the gripper never closed.
         grip_force: the grip after closing: ``requested_n`` (pad force asked for, N) and, when the gripper reports
@@ -113,6 +120,8 @@ class PickResult:
     """
 
     outcome: Outcome
+    loop_outcome: Outcome | None = None
+    target_id: int | None = None
     object_id: int = -1
     grasp: Grasp | None = None
     candidate_index: int = -1
@@ -147,6 +156,8 @@ class PickResult:
         """JSON-ready summary (outcome string, timings, judgement numbers, disturbances)."""
         return {
             "outcome": self.outcome.value,
+            "loop_outcome": None if self.loop_outcome is None else self.loop_outcome.value,
+            "target_id": self.target_id,
             "object_id": self.object_id,
             "candidate_index": self.candidate_index,
             "flipped": self.flipped,
@@ -166,38 +177,11 @@ class PickResult:
         }
 
 
-class _Sampler:
-    """Step callback recording the object's position relative to the TCP (world frame, m) every ``period`` s."""
-
-    def __init__(self, backend: Backend, object_id: int, period: float) -> None:
-        self.backend, self.object_id, self.period = backend, object_id, period
-        self.out: list[np.ndarray] | None = None
-        self._next = -np.inf
-
-    def rel(self) -> np.ndarray:
-        p = self.backend.ground_truth.object_poses()[self.object_id][:3, 3]
-        return p - self.backend.arm.state().T_world_tcp[:3, 3]
-
-    def __call__(self, t: float) -> None:
-        if self.out is not None and t >= self._next:
-            self.out.append(self.rel())
-            self._next = t + self.period
-
-    def start(self, out: list[np.ndarray]) -> None:
-        self.out, self._next = out, -np.inf
-        out.append(self.rel())
-
-    def stop(self) -> None:
-        if self.out is not None:
-            self.out.append(self.rel())
-        self.out = None
-
-
 class _Runner:
     """Executes motions and records phase timings."""
 
-    def __init__(self, backend: Backend, cfg: PickConfig) -> None:
-        self.b, self.cfg = backend, cfg
+    def __init__(self, backend: Backend, cfg: PickConfig, observer: PickObserver | None = None) -> None:
+        self.b, self.cfg, self.observer = backend, cfg, observer
         self.vmax, self.amax, self.scale = _limits_of(backend.arm, cfg)
         self.phases: list[PhaseTiming] = []
         self.tcp_errors: list[dict[str, Any]] = []
@@ -206,10 +190,14 @@ class _Runner:
     def phase(self, name: str, fn: Callable[[], Any]) -> Any:
         t_sim, t_wall = self.b.clock.now(), time.perf_counter()
         self._phase = name
+        if self.observer is not None:
+            self.observer.phase_started(name)
         try:
             return fn()
         finally:
             self.phases.append(PhaseTiming(name, self.b.clock.now() - t_sim, time.perf_counter() - t_wall))
+            if self.observer is not None:
+                self.observer.phase_ended(name)
 
     def _follow(self, t: np.ndarray, q: np.ndarray) -> None:
         """Send the trajectory, then the tracking check: measured TCP vs FK of the last commanded joints."""
@@ -237,25 +225,19 @@ class _Runner:
         self._follow(t, q)
 
 
-def _positions(backend: Backend) -> dict[int, np.ndarray] | None:
-    gt = backend.ground_truth
-    return None if gt is None else {k: T[:3, 3].copy() for k, T in gt.object_poses().items()}
-
-
 def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_direction: np.ndarray,
-                 criteria: SuccessCriteria | None = None, config: PickConfig | None = None, *,
+                 config: PickConfig | None = None, *,
                  ik: IKSolver | None = None, tool: ToolFrame | None = None,
                  collision: RobotCollisionChecker | None = None,
                  operator_confirm: Callable[[PickResult], bool] | None = None,
-                 ignore_ids: Collection[int] = ()) -> PickResult:
-    """Pick one object: the first reachable candidate (in order) is executed and judged.
+                 observer: PickObserver | None = None) -> PickResult:
+    """Pick one object: the first reachable candidate (in order) is executed, blind (see the module docstring).
 
     Args:
-        backend: the robot (its ``arm`` must be a SafeArm; ``ground_truth`` None on the real robot).
+        backend: the robot (its ``arm`` must be a SafeArm); only its arm, gripper, clock and robot model are used.
         grasp_candidates: grasps on one object, best first.
         translate_direction: (2,) horizontal direction of the 20 cm translation, or (K, 2) alternatives best first
             (see :func:`free_directions`); the first reachable one is used.
-        criteria: the success test's tolerances.
         config: pick settings.
         ik: IK solver on a robot-only model; default built from ``backend.robot_config``.
         tool: TCP axes of the gripper; default from ``backend.robot_config``.
@@ -263,14 +245,12 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
             ``config.check_robot_collisions`` (none without a robot config).
         operator_confirm: real robot only: called after the release with the provisional result; returning False
             turns a success into ``not_released``.
-        ignore_ids: objects left out of the disturbance checks (e.g. ones this trial already picked and put
-            down elsewhere: a released ball may still be rolling).
+        observer: told of the attempt and of every phase (the simulator's judge); it cannot change the pick.
 
-    Returns a :class:`PickResult`; errors of the motion itself (physics blow-ups, safety refusals) are reported as
-    outcomes, not raised.
+    Returns the :class:`PickResult` the robot believes (:attr:`PickResult.outcome`); errors of the motion itself
+    (physics blow-ups, safety refusals) are reported as outcomes, not raised.
     """
     cfg = config or PickConfig()
-    crit = criteria or SuccessCriteria()
     if not len(grasp_candidates):
         return PickResult(Outcome.NO_GRASP, message="no grasp candidates were given")
     rcfg = getattr(backend, "robot_config", None)
@@ -294,11 +274,13 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
     g = plan.grasp
     res = PickResult(Outcome.OTHER, object_id=int(g.object_id), grasp=g, candidate_index=idx, flipped=plan.flipped,
                      translate_direction=plan.direction, unreachable=failed)
-    run = _Runner(backend, cfg)
+    run = _Runner(backend, cfg, observer)
     res.phases = run.phases
     res.tcp_errors = run.tcp_errors
+    if observer is not None:
+        observer.attempt_started(g)
     try:
-        _run_pick(backend, plan, run, res, cfg, crit, tool, operator_confirm, frozenset(ignore_ids))
+        _run_pick(backend, plan, run, res, cfg, tool, operator_confirm)
     except PhysicsError as exc:
         res.outcome, res.message = Outcome.PHYSICS, str(exc)
         log.warning("pick aborted: %s", exc)
@@ -306,21 +288,18 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
         res.outcome, res.message = Outcome.OTHER, f"{type(exc).__name__}: {exc}"
         log.warning("pick aborted: %s", exc)
         backend.arm.stop()
+    finally:
+        if observer is not None:
+            observer.attempt_ended(res)
     return res
 
 
-def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, cfg: PickConfig,
-              crit: SuccessCriteria, tool: ToolFrame, operator_confirm: Callable[[PickResult], bool] | None,
-              ignore_ids: frozenset[int] = frozenset()) -> None:
-    g, arm, grip = plan.grasp, backend.arm, backend.gripper
-    k = int(g.object_id)
-    before = _positions(backend)
-    if before is not None:
-        before = {j: p for j, p in before.items() if j == k or j not in ignore_ids}
-    if before is not None and k not in before:
-        raise ExecutionError(f"grasp targets object {k} but the scene has objects {sorted(before)}")
+def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, cfg: PickConfig, tool: ToolFrame,
+              operator_confirm: Callable[[PickResult], bool] | None) -> None:
+    g, grip = plan.grasp, backend.gripper
     open_w = min(tool.max_opening, g.width + cfg.open_margin)
     run.phase("open", lambda: grip.move(open_w, cfg.grip_speed, cfg.grip_force))
+
     def pre_grasp() -> None:
         if "free" in plan.lines:
             run.line(*plan.lines["free"], cfg.transport_speed)
@@ -333,23 +312,6 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
     q, n = plan.lines["approach"]
     run.phase("approach", lambda: run.line(q, n, cfg.approach_speed))
 
-    def disturbance() -> dict[int, float]:
-        now = _positions(backend) or {}
-        return {j: float(np.linalg.norm(now[j] - p)) for j, p in (before or {}).items()}
-
-    if before is not None:
-        moved = disturbance()
-        hit = [j for j, dist in moved.items()
-               if dist > (cfg.approach_tolerance if j == k else cfg.neighbour_tolerance)]
-        if hit:
-            res.outcome = Outcome.COLLISION
-            res.message = "objects moved before the gripper closed: " + ", ".join(
-                f"{j}: {moved[j] * 1000:.1f} mm" for j in hit)
-            q, n = plan.lines["approach"]
-            run.phase("retreat", lambda: run.line(q[::-1], n, cfg.approach_speed))
-            _finish(res, disturbance(), k, cfg)
-            return
-
     def close():
         st = grip.move(cfg.close_width, cfg.grip_speed, cfg.grip_force)
         backend.clock.sleep(cfg.settle_after_close)
@@ -359,58 +321,16 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
     report = getattr(grip, "grip_report", None)
     res.grip_force = dict(report()) if callable(report) else {"requested_n": float(cfg.grip_force)}
 
-    trace = PickTrace(rest=before[k]) if before is not None else None
-    res.trace = trace
-    sampler = None
-    add_cb = getattr(backend, "add_step_callback", None)
-    if trace is not None and callable(add_cb):
-        sampler = _Sampler(backend, k, cfg.sample_dt)
-        add_cb(sampler)
-
-    def transport(name: str, out: list[np.ndarray] | None) -> None:
-        q, n = plan.lines[name]
-        if sampler is not None and out is not None:
-            sampler.start(out)
-        elif trace is not None and out is not None:  # no per-step hook: sample the ends only
-            out.append(backend.ground_truth.object_poses()[k][:3, 3] - arm.state().T_world_tcp[:3, 3])
-        try:
-            run.phase(name, lambda: run.line(q, n, cfg.transport_speed))
-        finally:
-            if sampler is not None and out is not None:
-                sampler.stop()
-            elif trace is not None and out is not None:
-                out.append(backend.ground_truth.object_poses()[k][:3, 3] - arm.state().T_world_tcp[:3, 3])
-
-    def obj() -> np.ndarray:
-        return backend.ground_truth.object_poses()[k][:3, 3].copy()
-
-    def tcp() -> np.ndarray:
-        return np.asarray(arm.state().T_world_tcp[:3, 3], float).copy()
-
-    if trace is not None:
-        trace.tcp_rest = tcp()
-
-    # Each carrying phase is judged right after it: from the true pose in simulation, from the gripper's object
-    # detection on the real robot.
-    stages = (("lift", "lift_end", Outcome.SLIPPED, "did not stay in the hand during the lift"),
-              ("translate", "translate_end", Outcome.DROPPED, "was dropped during the translation"))
-    try:
-        for phase, end_field, failure, why in stages:
-            transport(phase, getattr(trace, phase) if trace is not None else None)
-            if trace is not None:
-                setattr(trace, end_field, obj())
-                setattr(trace, f"tcp_{end_field}", tcp())
-                j = judge_pick(trace, crit)
-                if j.outcome is failure:
-                    return _abort(backend, run, res, cfg, j, f"the object {why}", disturbance, k)
-            elif not grip.state().object_detected:
-                res.outcome, res.message = failure, f"the gripper reports no object: it {why}"
-                run.phase("release", lambda: grip.move(open_w, cfg.grip_speed, cfg.grip_force))
-                return
-    finally:
-        remove = getattr(backend, "remove_step_callback", None)
-        if sampler is not None and callable(remove):
-            remove(sampler)
+    # Each carrying phase is checked right after it with what the robot can sense: the gripper's object detection.
+    stages = (("lift", Outcome.SLIPPED, "did not stay in the hand during the lift"),
+              ("translate", Outcome.DROPPED, "was dropped during the translation"))
+    for phase, failure, why in stages:
+        q, n = plan.lines[phase]
+        run.phase(phase, lambda q=q, n=n: run.line(q, n, cfg.transport_speed))
+        if not grip.state().object_detected:
+            res.outcome, res.message = failure, f"the gripper reports no object: it {why}"
+            run.phase("release", lambda: grip.move(open_w, cfg.grip_speed, cfg.grip_force))
+            return
 
     q, n = plan.lines["lower"]
     run.phase("lower", lambda: run.line(q, n, cfg.transport_speed))
@@ -419,32 +339,9 @@ def _run_pick(backend: Backend, plan: PickPlan, run: _Runner, res: PickResult, c
 
     def retreat() -> None:
         run.line(q, n, cfg.approach_speed)
-        if trace is not None:
-            backend.clock.sleep(0.2)  # let the released object come to rest before judging
+        backend.clock.sleep(SETTLE_AFTER_RELEASE_S)  # let the released object come to rest
 
     run.phase("retreat", retreat)
-    if trace is not None:
-        trace.final = obj()
-        res.judgement = judge_pick(trace, crit)
-        res.outcome = res.judgement.outcome
-        if res.outcome is Outcome.NOT_RELEASED:
-            dz_mm = res.judgement.final_height_change * 1000
-            res.message = f"the object ended {dz_mm:.1f} mm above/below its rest height"
-    else:
-        res.outcome = Outcome.SUCCESS
-        if operator_confirm is not None and not operator_confirm(res):
-            res.outcome, res.message = Outcome.NOT_RELEASED, "the operator did not confirm the placement"
-    _finish(res, disturbance(), k, cfg)
-
-
-def _abort(backend: Backend, run: _Runner, res: PickResult, cfg: PickConfig, j: Judgement, why: str,
-           disturbance: Callable[[], dict[int, float]], k: int) -> None:
-    """Stop after a failed stage: open the gripper where the arm is and record the verdict."""
-    res.judgement, res.outcome, res.message = j, j.outcome, why
-    run.phase("release", lambda: backend.gripper.move(backend.gripper.max_width, cfg.grip_speed, cfg.grip_force))
-    _finish(res, disturbance(), k, cfg)
-
-
-def _finish(res: PickResult, moved: dict[int, float], k: int, cfg: PickConfig) -> None:
-    res.disturbed = {j: d for j, d in moved.items() if j != k}
-    res.neighbours_disturbed = any(d > cfg.neighbour_tolerance for d in res.disturbed.values())
+    res.outcome = Outcome.SUCCESS
+    if operator_confirm is not None and not operator_confirm(res):
+        res.outcome, res.message = Outcome.NOT_RELEASED, "the operator did not confirm the placement"

@@ -35,6 +35,7 @@ class Outcome(str, Enum):
     NOT_RELEASED = "not_released"  # the object did not end up back on the table
     PHYSICS = "physics_error"  # NaN / exploding contacts: the trial aborts
     TRACKING = "arm_tracking_error"  # the object stayed in the hand but the arm fell short of the commanded motion
+    PHANTOM = "phantom_attempt"  # an attempt at a reconstructed object that is not there (the judge's verdict)
     OTHER = "other"
 
 

@@ -278,6 +278,10 @@ class RealBackend:
                        metadata={"backend": "real", "view_indices": taken, "requested_views": n,
                                  "joint_positions": qs, "dry_run": self.hardware.dry_run})
 
+    def calibration(self) -> Any:
+        """The cell's declared calibration from the hardware config (table height with its error, fixtures)."""
+        return self.hardware.calibration()
+
     def operator_confirm(self):
         """The operator confirmation hook for the executor (None unless ``operator_confirm`` is set)."""
         return operator_prompt if self.hardware.operator_confirm else None

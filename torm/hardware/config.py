@@ -85,6 +85,7 @@ class RealCaptureSettings:
     return_home: bool = True
     label: str = "real"
     table_height: float = 0.0
+    table_height_error: float = 0.0
     workspace_bounds: tuple[tuple[float, float, float], tuple[float, float, float]] = (
         (0.33, -0.22, -0.005), (0.77, 0.22, 0.20))
 
@@ -123,6 +124,10 @@ class HardwareConfig:
             ``rosservice args /robot/switch_controller``).
         workspace_min, workspace_max: TCP safety box (m) in the robot base frame.
         operator_confirm: ask the operator on stdin to confirm each placement.
+        fixtures: static fixtures declared to the planner, each ``{name, pose: [x, y, z, yaw_deg], boxes:
+            [[[cx, cy, cz], [hx, hy, hz]], ...] | mesh: file}`` (m, deg; :class:`torm.backend.calibration.
+            FixtureDeclaration`); with ``capture.table_height`` (m) and ``capture.table_height_error`` (m, the
+            measurement's stated error) they form the cell's declared calibration.
     """
 
     host: str = ""
@@ -154,9 +159,12 @@ class HardwareConfig:
     gripper: GripperSettings = field(default_factory=GripperSettings)
     camera: CameraSettings = field(default_factory=CameraSettings)
     capture: RealCaptureSettings = field(default_factory=RealCaptureSettings)
+    fixtures: tuple[dict[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         check_finite(self, "hardware config")
+        object.__setattr__(self, "fixtures", tuple(dict(f) for f in self.fixtures))
+        self.calibration()  # a bad fixture declaration or table height fails here, before anything moves
         if not self.host:
             raise ConfigError("hardware config: 'host' (the Inovo controller's address running rosbridge) is empty")
         if not 0 < self.port < 65536:
@@ -180,6 +188,15 @@ class HardwareConfig:
             raise ConfigError("hardware config: workspace_max must exceed workspace_min on every axis (m)")
 
 
+    def calibration(self) -> Any:
+        """The cell's declared :class:`torm.backend.calibration.Calibration` (table height, fixtures)."""
+        from torm.backend.calibration import Calibration, FixtureDeclaration
+
+        c = self.capture
+        return Calibration(c.table_height, c.table_height_error, "hardware config",
+                           tuple(FixtureDeclaration.from_dict(f) for f in self.fixtures))
+
+
 def load_hardware_config(path: str | Path, overrides: tuple[str, ...] | list[str] = ()) -> HardwareConfig:
     """Load a :class:`HardwareConfig` YAML; relative file paths inside are resolved against its folder."""
     p = Path(path)
@@ -192,6 +209,9 @@ def load_hardware_config(path: str | Path, overrides: tuple[str, ...] | list[str
 
     if "command_log" in data:
         data["command_log"] = _abs(data["command_log"])
+    for fx in data.get("fixtures") or []:
+        if isinstance(fx, dict) and "mesh" in fx:
+            fx["mesh"] = _abs(fx["mesh"])
     for section, key in (("gripper", "calibration"), ("camera", "hand_eye")):
         if isinstance(data.get(section), dict) and key in data[section]:
             data[section][key] = _abs(data[section][key])

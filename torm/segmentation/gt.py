@@ -7,14 +7,51 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from torm.errors import CaptureError
+from torm.errors import CaptureError, ConfigError
 from torm.segmentation.base import SegmentationResult, Segmenter
 from torm.types import Capture
 
 
 @dataclass(frozen=True)
 class GTConfig:
-    """The ground-truth segmenter has no settings; the config exists so every segmenter takes one."""
+    """Settings of the ground-truth segmenter.
+
+    Attributes:
+        phantoms: forced false positives, ``((x, y, z, radius), ...)`` spheres in the world frame (m) that every
+            view's mask marks as an extra object where it shows background, as a segmenter that mistakes an opaque
+            object for glass would, consistently across views. Each gets its own instance id after the real ones.
+            For testing that the loop attempts what it believes in (``phantom_attempt`` rows); empty by default.
+    """
+
+    phantoms: tuple[tuple[float, float, float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        ph = tuple(tuple(float(v) for v in p) for p in self.phantoms)
+        for p in ph:
+            if len(p) != 4 or not np.all(np.isfinite(p)) or p[3] <= 0:
+                raise ConfigError(f"gt.phantoms: each entry is (x, y, z, radius) in m with radius > 0, got {p}")
+        object.__setattr__(self, "phantoms", ph)
+
+
+def paint_phantoms(capture: Capture, masks_vxhxw: np.ndarray, phantoms: tuple, first_id: int) -> np.ndarray:
+    """``masks_vxhxw`` with each phantom sphere's silhouette painted over background pixels (ids from
+    ``first_id``): the projection of a sphere is convex, so the convex hull of its projected surface samples is its
+    silhouette. Views behind which a sphere lies are left unchanged."""
+    import cv2
+
+    out = masks_vxhxw.copy()
+    u = np.random.default_rng(0).normal(size=(2000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    for j, (x, y, z, r) in enumerate(phantoms):
+        pts = np.array([x, y, z]) + r * u
+        for v, view in enumerate(capture.views):
+            uv, depth = view.project(pts)
+            if np.any(depth <= 0):
+                continue
+            layer = np.zeros(out.shape[1:], np.uint8)
+            cv2.fillConvexPoly(layer, cv2.convexHull(np.round(uv).astype(np.int32)), 1)
+            out[v][(layer > 0) & (out[v] == 0)] = first_id + j
+    return out
 
 
 def gt_masks(capture: Capture) -> np.ndarray:
@@ -39,6 +76,8 @@ class GTSegmenter(Segmenter):
     def segment(self, capture: Capture) -> SegmentationResult:
         t0 = time.perf_counter()
         masks = gt_masks(capture)
+        if self.config.phantoms:
+            masks = paint_phantoms(capture, masks, self.config.phantoms, int(masks.max()) + 1)
         return SegmentationResult(
             masks_vxhxw=masks,
             timings={"total": time.perf_counter() - t0},
