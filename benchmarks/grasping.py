@@ -134,7 +134,10 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
             if ctx and ctx not in contexts[col]:
                 contexts[col].append(ctx)
             sc = row["scenario"]
-            cell = table[sc].setdefault(col, {"k": 0, "n": 0, "trials_ok": 0, "trials": 0})
+            cell = table[sc].setdefault(col, {"k": 0, "n": 0, "trials_ok": 0, "trials": 0, "phantom_attempts": 0,
+                                              "spurious": 0})
+            cell["phantom_attempts"] += int(row.get("n_phantom_attempts") or 0)
+            cell["spurious"] += len(row.get("spurious_objects") or [])
             objs = row.get("objects", [])
             k = sum(o["outcome"] == "success" for o in objs)
             cell["k"] += k
@@ -185,7 +188,9 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
         n = sum(r[col]["n"] for r in out_rows if col in r)
         tk = sum(r[col]["trials_ok"] for r in out_rows if col in r)
         tn = sum(r[col]["trials"] for r in out_rows if col in r)
-        totals[col] = {"objects": f"{k}/{n}", "object_rate": round(k / n, 3) if n else None,
+        totals[col] = {"phantom_attempts": sum(r[col].get("phantom_attempts", 0) for r in out_rows if col in r),
+                       "spurious": sum(r[col].get("spurious", 0) for r in out_rows if col in r),
+                       "objects": f"{k}/{n}", "object_rate": round(k / n, 3) if n else None,
                        "trials": f"{tk}/{tn}", "trial_rate": round(tk / tn, 3) if tn else None,
                        "objects_wilson95": format_rate(k, n), "trials_wilson95": format_rate(tk, tn)}
     return {"rows": out_rows, "timings": timings, "totals": totals,
@@ -258,9 +263,14 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
         for c in cols:
             po = result["per_object"].get(c, {})
             L.append(f"| {names[c]} | " + " | ".join(po.get(k, "–") for k in kinds) + " |")
-    L += ["", "## Outcome categories", ""]
+    L += ["", "## Outcome categories", "",
+          "Per real object; phantom attempts (the loop attempted a reconstructed object that was not there, judged "
+          "afterwards from the physics) and spurious reconstructions (matching no real object) per column.", ""]
     for c in cols:
-        L.append(f"- {names[c]}: " + ", ".join(f"{k} {v}" for k, v in sorted(result["outcomes"][c].items())))
+        t = result["totals"].get(c, {})
+        L.append(f"- {names[c]}: " + ", ".join(f"{k} {v}" for k, v in sorted(result["outcomes"][c].items()))
+                 + f"; phantom attempts {t.get('phantom_attempts', 0)}, spurious reconstructions "
+                   f"{t.get('spurious', 0)}")
     L += ["", "Versions: " + ", ".join(f"{k} {v}" for k, v in result["versions"].items() if v) + "."]
     path.write_text("\n".join(L) + "\n")
 

@@ -198,6 +198,16 @@ def overall_throughput(run: Run) -> float | None:
 Block = tuple  # ("h1"|"h2"|"h3"|"p", text) | ("table", headers, rows) | ("img", file, alt)
 
 
+def phantom_counts(rows: list[dict[str, Any]], scenario: str | None = None,
+                   method: str | None = None) -> tuple[int, int]:
+    """(phantom attempts, spurious reconstructions) summed over the selected rows (0, 0 for rows written before the
+    blind loop, which never attempted a reconstruction that matched no real object)."""
+    sel = [r for r in rows
+           if (scenario is None or r["scenario"] == scenario) and (method is None or r["method"] == method)]
+    return (sum(int(r.get("n_phantom_attempts") or 0) for r in sel),
+            sum(len(r.get("spurious_objects") or []) for r in sel))
+
+
 def _objects_label(rows: list[dict[str, Any]], scenario: str) -> str:
     sel = [r for r in rows if r["scenario"] == scenario]
     names = next((", ".join(o.get("name", "?") for o in r.get("objects", [])) for r in sel if r.get("objects")), "")
@@ -209,7 +219,7 @@ def table3(run: Run) -> list[Block]:
     rows, methods = run.rows, methods_of(run.rows, run.manifest)
     has_occ = any(occlusion(rows, sc) is not None for sc in scenarios_of(rows))
     headers = ["Scenario"] + (["OCC"] if has_occ else []) + ["Objects"]
-    headers += [h for m in methods for h in (f"{m} trials", f"{m} objects")]
+    headers += [h for m in methods for h in (f"{m} trials", f"{m} objects", f"{m} phantom / spurious")]
     body = []
     for sc in scenarios_of(rows):
         line = [sc]
@@ -218,11 +228,13 @@ def table3(run: Run) -> list[Block]:
             line.append("–" if occ is None else f"{100 * occ:.0f}%")
         line.append(_objects_label(rows, sc))
         for m in methods:
-            line += [_kn(*trial_counts(rows, sc, m)), _kn(*success_counts(rows, sc, m))]
+            line += [_kn(*trial_counts(rows, sc, m)), _kn(*success_counts(rows, sc, m)),
+                     "{} / {}".format(*phantom_counts(rows, sc, m))]
         body.append(line)
     total = ["**all**"] + ([""] if has_occ else []) + [""]
     for m in methods:
-        total += [f"**{_kn(*trial_counts(rows, None, m))}**", f"**{_kn(*success_counts(rows, None, m))}**"]
+        total += [f"**{_kn(*trial_counts(rows, None, m))}**", f"**{_kn(*success_counts(rows, None, m))}**",
+                  "**{} / {}**".format(*phantom_counts(rows, None, m))]
     body.append(total)
     per_object = []
     for sc in scenarios_of(rows):
@@ -233,7 +245,9 @@ def table3(run: Run) -> list[Block]:
             ("p", "*trials*: trials in which every object of the scene was picked / trials (the paper's unit for "
                   "TORM, 10 trials per scenario); *objects*: objects picked / objects attempted over all trials "
                   "(the paper's unit for its single-object baselines). k/n (rate [Wilson 95 % interval, %]). "
-                  "A trial that timed out or crashed counts as failed, with all its objects."),
+                  "A trial that timed out or crashed counts as failed, with all its objects. *phantom / spurious*: "
+                  "attempts at reconstructed objects that were not there / reconstructions matching no real object "
+                  "(the loop attempts every object it believes in; the judge scores afterwards)."),
             ("table", headers, body),
             ("h3", "Per object"),
             ("p", "Times each object was picked successfully / attempted, per method (as the paper's GraspNet "
@@ -416,7 +430,9 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
         ax.set_ylim(0, 125)
         ax.set_yticks([0, 25, 50, 75, 100])
     axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    axes[0].set_title(f"{run.name}: success by scenario (bars: rate, whiskers: Wilson 95 %)")
+    phantoms = ", ".join(f"{m} {phantom_counts(rows, None, m)[0]}" for m in methods)
+    axes[0].set_title(f"{run.name}: success by scenario (bars: rate, whiskers: Wilson 95 %)\n"
+                      f"phantom attempts: {phantoms}", fontsize=9)
     axes[1].set_xticks(range(len(scen)), scen)
     blocks.append(_save_plot(fig, out_dir, f"{prefix}success_by_scenario.png",
                              "trial and object success by scenario and method, with Wilson 95 % intervals"))
