@@ -393,7 +393,9 @@ def plot(doc: dict[str, Any], path: Path) -> None:
     ax.set_xticklabels([e["scenario"].upper() for e in scen])
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("trials with every object picked")
-    ax.set_title("Simulated (measured realism) vs the paper's Table III, per scenario (Wilson 95 %)")
+    phantoms = ", ".join(f"{METHOD_NAMES[m]} {s['totals'][m].get('phantom_attempts', 0)}" for m in methods)
+    ax.set_title("Simulated (measured realism) vs the paper's Table III, per scenario (Wilson 95 %)\n"
+                 f"phantom attempts: {phantoms}", fontsize=9)
     ax.legend(fontsize=7, ncol=2, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
