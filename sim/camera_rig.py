@@ -621,6 +621,7 @@ class SimCameraRig:
             else _renderer_label(self.rgb_renderer),
             "depth_model": self.depth_model.record(),
             "layout_indices": sel,
+            **({"mask_source": "simulator (ground truth)"} if "mask" in (channels or self.config.channels) else {}),
             "camera_rig": {
                 "radius": self.config.radius, "centre": list(self.config.centre),
                 "target_height": self.config.target_height, "hfov_deg": self.config.hfov_deg,

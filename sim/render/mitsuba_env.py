@@ -55,8 +55,9 @@ def resolve_variant(requested: str) -> str:
     if lib is None:
         if requested == "llvm_ad_rgb":
             raise RenderError(f"Mitsuba variant llvm_ad_rgb needs libLLVM >= 16, none found; {INSTALL_HINT}")
-        log.warning("no libLLVM >= 16 found: the PBR renderer falls back to Mitsuba's scalar_rgb variant (~10x "
-                    "slower); %s", INSTALL_HINT)
+        log.warning("no libLLVM >= 16 found: the PBR renderer falls back to Mitsuba's scalar_rgb variant, ~10x "
+                    "slower and a different look (Mitsuba's plain path integrator, not the glass_path one the "
+                    "learned segmenter was trained on: expect lower silhouette IoU); %s", INSTALL_HINT)
         return "scalar_rgb"
     os.environ.setdefault("DRJIT_LIBLLVM_PATH", lib)
     return "llvm_ad_rgb"

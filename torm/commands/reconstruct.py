@@ -99,9 +99,11 @@ def run(args: argparse.Namespace) -> int:
     from torm.errors import CaptureError, ConfigError
     from torm.mesh.export import write_mesh, write_point_cloud
     from torm.reconstruction import ReconstructionConfig, reconstruct
+    from torm.segmentation.base import mask_reference, masks_are_ground_truth
 
     capture = load_capture(args.capture_dir)
-    gt_masks = capture.masks() if capture.has_masks else None
+    input_ref = mask_reference(capture)
+    gt_masks = capture.masks() if masks_are_ground_truth(capture) else None
     seg_summary = None
     if args.segmenter:
         from torm.commands.segment import load_segmenter_config
@@ -145,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
                "config": cfgmod.to_dict(cfg), "segmentation": seg_summary, "files": files,
                "input_views": used, "heldout_views": held}
     (out / "reconstruction.json").write_text(json.dumps({**summary, "history": rec.history}, default=float))
-    ref = "the capture's masks (ground truth)" if gt_masks is not None else "the segmenter's masks"
+    ref = input_ref if gt_masks is not None else (mask_reference(capture) if seg_summary is None else
+                                                  "the segmenter's masks")
     scored = capture if gt_masks is None else capture.with_masks(gt_masks)
     metrics = _evaluate(scored, used, held, rec.scene_mesh, ref)
     metrics["n_objects_found"] = rec.n_objects

@@ -11,9 +11,12 @@ Examples::
 
 The output folder (default ``CAPTURE_DIR_<segmenter>``) is a full capture (``transforms.json``, images,
 depth) whose ``masks/`` hold the predicted 16-bit instance masks. The input folder is never modified.
-When the input had ground-truth masks they are kept in ``gt_masks/`` and the mask quality (IoU vs GT)
-is stored in ``metadata.segmentation``; GT object ids/names move to ``metadata.gt_object_ids/names``
-and ``object_ids`` lists the predicted instance ids. ``--config`` is YAML with the segmenter's config
+When the input had ground-truth masks (the simulator's: ``metadata.mask_source``) they are kept in ``gt_masks/``
+and the mask quality (IoU vs GT) is stored in ``metadata.segmentation``; GT object ids/names move to
+``metadata.gt_object_ids/names`` and ``object_ids`` lists the predicted instance ids. Masks of any other origin (a
+segmenter's, a recorded capture's) are never called ground truth: the output names their source in
+``metadata.input_mask_source`` and its own in ``metadata.mask_source``. Without ``--segmenter`` the shipped learned
+model runs (no downloaded weights needed). ``--config`` is YAML with the segmenter's config
 fields at the top level (or under a key named after the segmenter); ``--set key=value`` overrides them
 (``torm config show segment:NAME`` lists a segmenter's keys, e.g. ``segment:noisy``).
 With ``--check-views`` the cross-view consistency checks run and ``drop`` writes only the kept views.
@@ -39,8 +42,9 @@ log = logging.getLogger(__name__)
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "segment", __doc__, help="extract per-view instance masks of a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
-    p.add_argument("--segmenter", default="grounded_sam",
-                   help="gt | noisy | grounded_sam | learned (default grounded_sam)")
+    p.add_argument("--segmenter", default="learned",
+                   help="learned | grounded_sam | gt | noisy (default learned: the shipped model, no downloads; "
+                        "grounded_sam needs your ONNX exports)")
     p.add_argument("--prompt", default=None, help="grounded_sam text prompt, phrases separated by '.'")
     p.add_argument("--preset", default=None, help="noisy: error preset (none, mild, moderate, severe, paper, ...)")
     p.add_argument("--seed", type=int, default=None, help="noisy: corruption seed")
@@ -97,7 +101,9 @@ def run(args: argparse.Namespace) -> int:
     capture = load_capture(args.capture_dir)
     segmenter = make_segmenter(name, config)
     result = segmenter.segment(capture)
-    gt = capture.masks() if capture.has_masks else None
+    from torm.segmentation.base import MASK_SOURCE_KEY, masks_are_ground_truth
+
+    gt = capture.masks() if masks_are_ground_truth(capture) else None
     out_cap = result.apply(capture)
     summary = result.summary()
     summary.pop("events", None)
@@ -112,8 +118,12 @@ def run(args: argparse.Namespace) -> int:
     keeps_ids = name in ("gt", "noisy")
     names = [gt_names.get(k, f"spurious{k}") if keeps_ids else f"instance{k}" for k in pred_ids]
     meta = dict(capture.metadata)
-    meta["gt_object_ids"] = list(capture.object_ids)
-    meta["gt_object_names"] = list(capture.object_names)
+    if gt is not None:
+        meta["gt_object_ids"] = list(capture.object_ids)
+        meta["gt_object_names"] = list(capture.object_names)
+    elif capture.has_masks:  # the input's masks were not the simulator's: say where they came from, call them nothing
+        meta["input_mask_source"] = capture.metadata.get(MASK_SOURCE_KEY, "unknown (not ground truth)")
+    meta[MASK_SOURCE_KEY] = out_cap.metadata.get(MASK_SOURCE_KEY, f"segmenter {name}")
     meta["segmentation"] = _json_safe({k: v for k, v in summary.items() if k != "instances_per_view"})
     out_cap = replace(out_cap, object_ids=tuple(pred_ids), object_names=tuple(names), metadata=meta)
     out = Path(args.out) if args.out else Path(str(Path(args.capture_dir).resolve()) + f"_{name}")

@@ -10,7 +10,7 @@ ids do not correspond across views there. The reconstruction only needs the unio
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -79,13 +79,21 @@ class SegmentationResult:
         return self.masks_vxhxw > 0
 
     def apply(self, capture: Capture) -> Capture:
-        """A copy of ``capture`` whose views carry these masks (replacing any ground-truth masks)."""
+        """A copy of ``capture`` whose views carry these masks (replacing any ground-truth masks); its metadata's
+        :data:`MASK_SOURCE_KEY` names the segmenter, so the masks are never taken for ground truth later."""
         if capture.image_size != tuple(self.masks_vxhxw.shape[1:]):
             raise SegmentationError(
                 f"masks are {self.masks_vxhxw.shape[1:]} (H, W) but the capture is {capture.image_size}; "
                 "segment the same capture you attach the masks to"
             )
-        return capture.with_masks(self.masks_vxhxw)
+        name = self.info.get("segmenter", "?")
+        if name == "gt" and not self.info.get("phantoms"):
+            return capture.with_masks(self.masks_vxhxw)  # the capture's own masks: their source stays
+        source = f"segmenter {name}"
+        if self.info.get("model_fingerprint"):
+            source += f" ({self.info['model_fingerprint']})"
+        out = capture.with_masks(self.masks_vxhxw)
+        return replace(out, metadata={**out.metadata, MASK_SOURCE_KEY: source})
 
     def summary(self) -> dict[str, Any]:
         """JSON-friendly summary: counts, timings and info (no arrays)."""
@@ -96,6 +104,27 @@ class SegmentationResult:
             "timings": dict(self.timings),
             **{k: v for k, v in self.info.items()},
         }
+
+
+#: Capture metadata key naming where a capture's masks come from: :data:`GT_MASK_SOURCE` for the simulator's
+#: instance masks, ``segmenter <name> (...)`` for a segmenter's; absent = unknown (recorded frames), never ground truth.
+MASK_SOURCE_KEY = "mask_source"
+#: The value the simulated camera rig writes. Only sources ending in "(ground truth)" (this one, the analytic sphere
+#: captures of the tests) are called ground truth.
+GT_MASK_SOURCE = "simulator (ground truth)"
+
+
+def masks_are_ground_truth(capture: Capture) -> bool:
+    """True only when the capture's masks are the simulator's own instance masks (see :data:`MASK_SOURCE_KEY`)."""
+    return capture.has_masks and str(capture.metadata.get(MASK_SOURCE_KEY, "")).endswith("(ground truth)")
+
+
+def mask_reference(capture: Capture) -> str:
+    """How to name a capture's masks when scoring against them: ``ground truth`` only for the simulator's."""
+    if masks_are_ground_truth(capture):
+        return f"ground truth ({capture.metadata[MASK_SOURCE_KEY].removesuffix(' (ground truth)')})"
+    src = capture.metadata.get(MASK_SOURCE_KEY)
+    return f"the capture's masks ({src})" if src else "the capture's masks (source unknown, not ground truth)"
 
 
 class Segmenter(abc.ABC):

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from torm.errors import CaptureError, ConfigError, ModelFileError
-from torm.segmentation.base import Detection, SegmentationResult, Segmenter
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter, mask_reference
 from torm.segmentation.boxes import DecodedBoxes, decode_grounding
 from torm.segmentation.onnx_models import BoundSession, TensorSpec, open_session, static_dims
 from torm.segmentation.postprocess import clean_mask, compose_instances
@@ -314,6 +314,7 @@ class GroundedSAMSegmenter(Segmenter):
         out = np.stack(masks)
         info: dict[str, Any] = {"segmenter": self.name, "prompt": self.config.prompt,
                                 "providers": self.gdino.session.get_providers()}
-        if capture.has_masks:
+        if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
             info["quality"] = mask_quality(out, capture.masks())
+            info["quality_reference"] = mask_reference(capture)
         return SegmentationResult(out, tuple(dets), timings, info)

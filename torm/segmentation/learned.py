@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from torm.errors import CaptureError, ConfigError, ModelFileError
-from torm.segmentation.base import Detection, SegmentationResult, Segmenter
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter, mask_reference
 from torm.segmentation.instances import instances_from_maps
 from torm.segmentation.onnx_models import TensorSpec, open_session
 from torm.segmentation.quality import mask_quality
@@ -219,8 +219,28 @@ class LearnedSegmenter(Segmenter):
                                   "object", i))
         return mask, tuple(dets)
 
+    def check_domain(self, capture: Capture) -> dict[str, Any]:
+        """Where this model was validated against the capture's domain (:func:`capture_domain`); warns once per
+        model and domain when the model card (``validated_on``) does not list the domain as validated, with the
+        score measured there when there is one. Returns ``{"domain", "validated", "measured"}``."""
+        dom = capture_domain(capture)
+        table = self.card.get("validated_on") or {}
+        entry = table.get(dom) or {}
+        validated = bool(entry.get("validated"))
+        key = (str(self.config.model_path), dom)
+        if not validated and key not in _DOMAIN_WARNED:
+            _DOMAIN_WARNED.add(key)
+            where = [f"{d} ({v['metric']} {v['value']})" for d, v in table.items() if v.get("validated")]
+            there = (f"measured there: {entry['metric']} {entry['value']}" if entry.get("value") is not None
+                     else "never validated there") + (f" ({entry['source']})" if entry.get("source") else "")
+            log.warning("learned segmenter %s is used on %s images, a domain it was not validated on (%s); it was "
+                        "validated on %s. Expect worse silhouettes; see torm/segmentation/README.md", self.config.
+                        model_path.name, dom, there, ", ".join(where) or "nothing its card lists")
+        return {"domain": dom, "validated": validated, "measured": entry.get("value")}
+
     def segment(self, capture: Capture) -> SegmentationResult:
         t0 = time.perf_counter()
+        domain = self.check_domain(capture)
         masks, dets = [], []
         for i, view in enumerate(capture.views):
             if view.rgb is None:
@@ -230,14 +250,29 @@ class LearnedSegmenter(Segmenter):
             dets.append(d)
         out = np.stack(masks)
         info: dict[str, Any] = {"segmenter": self.name, "model": str(self.config.model_path),
+                                "model_fingerprint": model_fingerprint(self.config.model_path), "domain": domain,
                                 "model_renderer": self.card.get("data", {}).get("renderer"),
                                 "postprocess": dict(self.postprocess)}
-        if capture.has_masks:
+        if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
             info["quality"] = mask_quality(out, capture.masks())
+            info["quality_reference"] = mask_reference(capture)
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
 
 
 _SHIPPED: list[LearnedSegmenter] = []
+#: (model path, domain) pairs already warned about in this process (the domain warning fires once).
+_DOMAIN_WARNED: set[tuple[str, str]] = set()
+
+
+def capture_domain(capture: Capture) -> str:
+    """The image domain of a capture, from its metadata: ``mujoco``, ``pbr:llvm_ad_rgb``, ``pbr:scalar_rgb`` or
+    ``recorded`` (no renderer named: real photos or third-party frames)."""
+    r = str(capture.metadata.get("renderer") or "")
+    if r.startswith("mujoco"):
+        return "mujoco"
+    if r.startswith("pbr"):
+        return "pbr:scalar_rgb" if "scalar_rgb" in r else "pbr:llvm_ad_rgb"
+    return r.split()[0] if r else "recorded"
 
 
 def foreground_mask(rgb: np.ndarray) -> np.ndarray:

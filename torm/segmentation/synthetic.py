@@ -69,4 +69,5 @@ def sphere_capture(
         views=tuple(views), scenario="synthetic_spheres", seed=seed,
         object_ids=tuple(range(1, len(sph) + 1)), object_names=tuple(f"sphere{k}" for k in range(1, len(sph) + 1)),
         table_height=0.0, workspace_bounds=np.array([[0.33, -0.22, -0.005], [0.77, 0.22, 0.20]]),
+        metadata={"mask_source": "synthetic spheres (ground truth)"},
     )
