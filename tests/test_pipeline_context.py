@@ -14,7 +14,11 @@ def test_context_names_every_choice():
                                                                        "segmentation.preset=severe"])
     ctx = trial_context(cfg)
     assert ctx == {"method": "torm", "reconstruction_mode": "fast", "segmenter": "noisy:severe",
-                   "renderer": "mujoco", "depth_model": "ideal", "realism": "ideal", "backend": "sim"}
+                   "renderer": "mujoco", "depth_model": "ideal", "realism": "ideal", "backend": "sim",
+                   "table": "declared"}
+    stressed = trial_context(config.from_dict(TrialConfig, {"method": "torm", "table": "capture"}, overrides=[
+        "world.realism=stress", "world.stress=2", "world.factors=[contact]"]))
+    assert stressed["realism"] == "stress[contact] x2" and stressed["table"] == "capture"
     ctx = trial_context(config.from_dict(TrialConfig, {"method": "oracle"}))
     assert ctx["reconstruction_mode"] is None and ctx["segmenter"] is None
 

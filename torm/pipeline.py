@@ -227,7 +227,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
 
     Keys: ``method``, ``reconstruction_mode`` (torm only), ``segmenter`` (torm: its segmenter, ``noisy:<preset>``
     for the error model; the depth baselines: ``gt``, they cut with the capture's masks), ``renderer``,
-    ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn), ``backend``;
+    ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn; ``stress[...] xK``),
+    ``backend``, ``table`` (where the loop's table height came from: ``declared`` or ``capture``);
     with the ``learned`` segmenter also ``segmenter_model`` (:func:`torm.segmentation.learned.model_fingerprint`:
     file name and content hash).
     """
@@ -244,6 +245,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
                     if config.world.factors and config.world.realism != "ideal" else config.world.realism)
         + (f" x{config.world.stress:g}" if config.world.realism == "stress" else ""),
         "backend": config.backend,
+        "table": config.table,
     }
     if torm_method and seg.segmenter == "learned":
         from torm.segmentation.learned import model_fingerprint
