@@ -54,7 +54,8 @@ from torm.pipeline import REALISM_FACTORS as FACTORS  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "runs"
-METHOD_NAMES = {"torm": "TORM", "depth": "depth baseline", "oracle": "oracle (true meshes)"}
+METHOD_NAMES = {"torm": "TORM", "depth": "depth baseline", "depth_fusion": "depth fusion (TSDF, all views)",
+                "oracle": "oracle (true meshes)"}
 
 #: The paper's Table III (real robot, 10 trials per scenario). TORM: trials per scenario; GraspNet (the
 #: depth-camera baseline): per object, None = "failed"; Dex-NeRF failed in every scenario.
@@ -376,13 +377,13 @@ def plot(doc: dict[str, Any], path: Path) -> None:
 
     s = doc["summary"]
     scen = [e for e in s["scenarios"] if e["scenario"] in PAPER]
-    methods = [m for m in ("torm", "oracle", "depth") if m in s["totals"]]
+    methods = [m for m in ("torm", "oracle", "depth", "depth_fusion") if m in s["totals"]]
     x = np.arange(len(scen))
     w = 0.8 / (len(methods) + 1)
     fig, ax = plt.subplots(figsize=(9, 4))
     paper = [e["paper_torm"]["rate"] for e in scen]
     ax.bar(x - 0.4 + w / 2, paper, w, label="paper TORM (real robot)", color="0.35")
-    colours = {"torm": "tab:blue", "oracle": "tab:green", "depth": "tab:orange"}
+    colours = {"torm": "tab:blue", "oracle": "tab:green", "depth": "tab:orange", "depth_fusion": "tab:red"}
     for i, m in enumerate(methods, start=1):
         r = [e[m]["trials"]["rate"] if m in e else np.nan for e in scen]
         lo = [e[m]["trials"]["rate"] - e[m]["trials"]["wilson95"][0] if m in e else 0 for e in scen]

@@ -35,6 +35,7 @@ from benchmarks.fidelity import FAILURE_MODES  # noqa: E402
 from torm.bench import BenchConfig, run_benchmark  # noqa: E402
 from torm.bench.report import load_run  # noqa: E402
 from torm.bench.results import git_revision, package_versions  # noqa: E402
+from torm.bench.spec import DEFAULT_TRIAL_FN  # noqa: E402
 from torm.bench.stats import wilson_interval  # noqa: E402
 from torm.errors import BenchmarkError  # noqa: E402
 from torm.pipeline import REALISM_FACTORS as FACTORS  # noqa: E402
@@ -101,7 +102,7 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
     L += ["", "Values at each level (the worst end of each sourced range times the level; "
               "`MeasuredRanges.stressed`):", ""]
     for group in cfg["groups"]:
-        L.append(f"- **{group}**: " + "; ".join(f"x{lv:g}: {txt}" for lv, txt in doc["values"][group].items()))
+        L.append(f"- **{group}**: " + "; ".join(f"x{lv}: {txt}" for lv, txt in doc["values"][group].items()))
     g = s.get("grip_force", {})
     clipped = [lv for lv, e in g.items() if e.get("grip_requested_n") is not None and e.get("grip_commanded_n")
                is not None and e["grip_commanded_n"] > e["grip_requested_n"] + 1e-6]
@@ -168,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--timeout", type=float, default=1800.0)
+    ap.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN)
     ap.add_argument("--runs-dir", default=str(RUNS))
     ap.add_argument("--results-dir", default=str(RESULTS))
     ap.add_argument("--report-only", action="store_true")
@@ -177,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     levels = [float(v) for v in args.levels.split(",") if v]
     groups = [g for g in args.groups.split(",") if g]
     common = dict(suite="rw", scenarios=tuple(args.scenario), workers=args.workers, timeout_s=args.timeout,
-                  threads=args.threads, trials=args.trials, methods=(args.method,))
+                  threads=args.threads, trials=args.trials, methods=(args.method,), trial_fn=args.trial_fn)
     runs = Path(args.runs_dir)
     plan: dict[tuple[str, str], tuple[BenchConfig, Path]] = {
         ("*", "ideal"): (BenchConfig(overrides=("world.realism=ideal",), **common), runs / "ideal")}

@@ -91,7 +91,11 @@ def run(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = No
         with open(record_path, "w") as f:
             f.write(f"fake recording of {spec.key}\n")
     n_success = sum(o["outcome"] == "success" for o in objects)
+    extra = np.random.default_rng(spec.seed + 1)  # phantoms from their own stream: the draws above stay as they were
+    spurious = [{"label": 1000 + n + j, "matched_object": None, "outcome": "phantom_attempt"}
+                for j in range(int(spec.method == "torm" and extra.random() < 0.3))]
     return {"scenario": spec.scenario, "seed": spec.seed, "method": spec.method, "config": {"fake": opts},
+            "spurious_objects": spurious, "n_phantom_attempts": len(spurious),
             "versions": {"fake": "1"}, "timings": timings, "perception": perception, "objects": objects,
             "failure": failure, "n_objects": n, "n_success": n_success, "success_rate": n_success / n if n else 0.0}
 

@@ -64,7 +64,8 @@ def test_report_numbers_match_rows(run_dirs):
     assert set(by_sc) == {"rw1", "rw3", "rw4", "**all**"}
     header = next(x for x in md.splitlines() if x.startswith("| Scenario |"))
     cols = [c.strip() for c in header.strip("|").split("|")]
-    assert cols == ["Scenario", "OCC", "Objects", "torm trials", "torm objects", "depth trials", "depth objects"]
+    assert cols == ["Scenario", "OCC", "Objects", "torm trials", "torm objects", "torm phantom / spurious",
+                    "depth trials", "depth objects", "depth phantom / spurious"]
     for sc in ("rw1", "rw3", "rw4"):
         for m in ("torm", "depth"):
             sel = [r for r in rows if r["scenario"] == sc and r["method"] == m]
@@ -81,6 +82,9 @@ def test_report_numbers_match_rows(run_dirs):
     k, n = success_counts(rows, None, "torm")
     assert by_sc["**all**"][cols.index("torm objects")] == f"**{_kn(k, n)}**"
     assert summary["runs"][0]["success"]["torm"] == {"k": k, "n": n}
+    ph = sum(int(r.get("n_phantom_attempts") or 0) for r in rows if r["method"] == "torm")
+    sp = sum(len(r.get("spurious_objects") or []) for r in rows if r["method"] == "torm")
+    assert by_sc["**all**"][cols.index("torm phantom / spurious")] == f"**{ph} / {sp}**"
     kt, nt = trial_counts(rows, None, "torm")
     assert summary["runs"][0]["trial_success"]["torm"] == {"k": kt, "n": nt} and nt == 9
     # per-object table and the CSV export hold the same numbers
