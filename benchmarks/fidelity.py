@@ -121,6 +121,8 @@ def contexts(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
     out: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in rows:
         c = r.get("context") or {"method": r["method"], "status": r.get("status")}
+        if r.get("context") and "table" not in c:  # rows written before the context named it: always declared
+            c = {**c, "table": "declared"}
         if c not in out[r["method"]]:
             out[r["method"]].append(c)
     return dict(out)
@@ -278,7 +280,8 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
          f"{cfg['trials']} trials per scenario and method (the paper's 10), realism profile **measured** "
          f"(`sim/REALISM.md`: contact, grip force, object mass, calibration and execution errors drawn per trial from "
          f"sourced ranges; nothing fitted to Table III). Overrides: {', '.join(f'`{o}`' for o in cfg['overrides'])}. "
-         f"Date {doc['date']}, git {((doc.get('git') or {}).get('commit') or '?')[:7]}; load average before "
+         f"Report {doc['date']}; the rows ran on git {((doc.get('git') or {}).get('commit') or '?')[:7]} (the run "
+         f"folder's identity); load average before "
          f"{doc['loadavg_before']} (contended: "
          f"**{str(doc['contended']).lower()}**). What produced the rows:", ""]
     L += [f"- {c}" for c in ctx_lines]
@@ -479,11 +482,15 @@ def main(argv: list[str] | None = None) -> int:
             logging.info("fidelity part %s -> %s", name, folder)
             run_benchmark(cfg, folder, fresh=args.fresh)
     rows: dict[str, list[dict[str, Any]]] = {}
+    run_git: dict[str, Any] = {}
     for name, (_, folder) in plan.items():
         try:
-            rows[name] = load_run(folder).rows
+            run = load_run(folder)
         except BenchmarkError:
             logging.warning("no rows in %s yet", folder)
+            continue
+        rows[name] = run.rows
+        run_git[name] = ((run.manifest.get("identity") or {}).get("code") or {}).get("git")
     main_rows = rows.get("main", [])
     sens: dict[str, list[dict[str, Any]]] = {}
     if not args.no_sensitivity:
@@ -501,7 +508,8 @@ def main(argv: list[str] | None = None) -> int:
                    "workers": args.workers, "threads": args.threads, "scenarios": args.scenario},
         "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "loadavg_before": [round(x, 2) for x in load_before], "contended": bool(load_before[0] > 0.5 * cores),
-        "versions": package_versions(), "git": git_revision(), "paper": PAPER,
+        "versions": package_versions(), "git": (run_git.get("main") or git_revision()), "run_git": run_git,
+        "paper": PAPER,
         "run_folders": {k: str(v[1]) for k, v in plan.items()},
         "rows": {k: len(v) for k, v in rows.items()},
         "summary": summarise(main_rows, sens, methods, sens_methods),

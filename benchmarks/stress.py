@@ -84,8 +84,8 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
          "the worst end of its sourced range (`sim/REALISM.md`); x2 and x4 push it two and four times further "
          "(`world.realism=stress`): **stress, not realism**. Cells: objects picked / attempted [Wilson 95 %]; "
          "failures by kind (slip, displaced, pruned, not seen, phantom, other). "
-         f"Date {doc['date']}, git {(doc['git'].get('commit') or '?')[:7]}"
-         f"{' (dirty)' if doc['git'].get('dirty') else ''}.", "",
+         f"Report {doc['date']}; the rows ran on git {', '.join(doc.get('run_git') or ['?'])} (the run folders' "
+         "identity).", "",
          "| factor group | " + " | ".join(levels) + " |", "|---|" + "---|" * len(levels)]
     for group in cfg["groups"]:
         cells = []
@@ -193,12 +193,16 @@ def main(argv: list[str] | None = None) -> int:
             run_benchmark(cfg, folder, fresh=args.fresh)
     summary: dict[str, dict[str, Any]] = defaultdict(dict)
     ideal = None
+    run_git: set[str] = set()
     for (g, lv), (_, folder) in plan.items():
         try:
-            rows = load_run(folder).rows
+            run = load_run(folder)
         except BenchmarkError:
             logging.warning("no rows in %s yet", folder)
             continue
+        rows = run.rows
+        git = ((run.manifest.get("identity") or {}).get("code") or {}).get("git") or {}
+        run_git.add(str(git.get("commit"))[:7] + (" (dirty)" if git.get("dirty") else ""))
         if g == "*":
             ideal = level_summary(rows)
         else:
@@ -211,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     doc = {"config": {"trials": args.trials, "levels": levels, "groups": groups, "method": args.method,
                       "scenarios": args.scenario, "workers": args.workers},
            "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-           "versions": package_versions(), "git": git_revision(), "summary": summary,
+           "versions": package_versions(), "git": git_revision(), "run_git": sorted(run_git), "summary": summary,
            "values": {g: {f"{lv:g}": level_values(g, lv) for lv in levels} for g in groups},
            "run_folders": {f"{g}:{lv}": str(f) for (g, lv), (_, f) in plan.items()},
            "plot": str(out / "stress.png")}
