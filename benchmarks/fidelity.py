@@ -285,6 +285,11 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
          f"{doc['loadavg_before']} (contended: "
          f"**{str(doc['contended']).lower()}**). What produced the rows:", ""]
     L += [f"- {c}" for c in ctx_lines]
+    done, expected = doc.get("rows", {}).get("main", 0), doc.get("expected_main_rows")
+    if expected and done < expected:
+        L += ["", f"**Incomplete run: {done} of {expected} trials** (the grid runs trial 0 of every scenario, then "
+                  "trial 1, ...; every scenario has the trials the cells count). The run folder resumes: rerun the "
+                  "same command to finish it; this report is rewritten then."]
     L += ["", "## Per scenario, in the paper's unit",
           "",
           "Trials in which every object of the scene was picked (lifted 25 cm, moved 20 cm, lowered, released) / "
@@ -512,6 +517,7 @@ def main(argv: list[str] | None = None) -> int:
         "paper": PAPER,
         "run_folders": {k: str(v[1]) for k, v in plan.items()},
         "rows": {k: len(v) for k, v in rows.items()},
+        "expected_main_rows": args.trials * len(methods) * (len(args.scenario) or len(PAPER)),
         "summary": summarise(main_rows, sens, methods, sens_methods),
         "plot": str(out_dir / f"fidelity{tag}.png"),
         "notes": [
