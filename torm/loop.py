@@ -262,7 +262,7 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     attempts: list[dict[str, Any]] = []
     timings["execution"] = 0.0
     while pending and len(attempts) < max_attempts:
-        if config.re_perceive and attempts:
+        if config.re_perceive and attempts and record.get("failure") != Outcome.PHYSICS.value:
             try:
                 per, new, table_z = sense()
             except ReconstructionError as exc:  # keep planning on the previous reconstruction
