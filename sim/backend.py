@@ -268,6 +268,8 @@ class SimGripper:
         # contacts with anything but an object (table, robot) do not count as grip force
         self._not_objects = frozenset(int(g) for g in np.nonzero(np.asarray(sim.world.geom_to_instance) == 0)[0])
         self.max_width: float = float(g.geometry.max_opening)
+        #: (low, high) pad force a command is clipped to (N).
+        self.force_range_n: tuple[float, float] = tuple(float(v) for v in sim.config.gripper_force_range)
         cmds = np.array([c for c, _ in g.command_to_width])
         widths = np.array([w for _, w in g.command_to_width])
         self._m_per_cmd = float(abs(widths[0] - widths[-1]) / (cmds[-1] - cmds[0]))  # mean gap change per command
@@ -366,6 +368,10 @@ class SimGripper:
         lo, hi = sim.config.gripper_force_range
         self._requested_n = float(force_n)
         self.force_n = float(np.clip(force_n, lo, hi))
+        if self.force_n != self._requested_n and "force_clip" not in self._warned:
+            self._warned.add("force_clip")
+            log.warning("gripper: a pad force of %g N was asked for, outside the %g-%g N range; %g N is commanded "
+                        "(the trial record's grip_force shows both)", self._requested_n, lo, hi, self.force_n)
         target = float(np.clip(g.width_to_command(width_m), self._cmd_lo, self._cmd_hi))
         w0 = self.width()
         self._closing = width_m < w0

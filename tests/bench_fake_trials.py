@@ -61,6 +61,9 @@ def run(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = No
         os._exit(3)
     if _hit(spec, opts.get("segv")):
         os.kill(os.getpid(), signal.SIGSEGV)
+    if _hit(spec, opts.get("sigint")):
+        os.kill(os.getpid(), signal.SIGINT)  # someone stops the worker with Ctrl-C's signal
+        time.sleep(5)
     if _hit(spec, opts.get("raise")):
         raise RuntimeError(f"fake failure in {spec.key}")
     if _hit(spec, opts.get("physics")):
@@ -98,6 +101,13 @@ def run(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = No
             "spurious_objects": spurious, "n_phantom_attempts": len(spurious),
             "versions": {"fake": "1"}, "timings": timings, "perception": perception, "objects": objects,
             "failure": failure, "n_objects": n, "n_success": n_success, "success_rate": n_success / n if n else 0.0}
+
+
+def safe_stop(spec: Any, overrides: tuple[str, ...] = ()) -> Any:
+    """The default module's driver-side stop (:func:`torm.bench.trial.safe_stop`) without the ``fake.`` keys."""
+    from torm.bench.trial import safe_stop as real_safe_stop
+
+    return real_safe_stop(spec, tuple(o for o in overrides if not o.startswith("fake.")))
 
 
 def real_arm(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = None) -> dict[str, Any]:

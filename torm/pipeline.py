@@ -33,6 +33,7 @@ from torm.capture.render_settings import PbrSettings
 from torm.config import check_finite, to_dict
 from torm.errors import ConfigError, TormError, UnknownNameError
 from torm.execution.pick import PickConfig
+from torm.execution.pick_config import check_grip_force
 from torm.execution.success import Outcome, SuccessCriteria
 from torm.fusion import FusionConfig
 from torm.grasp.planner import GraspPlannerConfig
@@ -49,6 +50,7 @@ from torm.loop import (  # noqa: F401  (re-exported: the loop's pieces were defi
 )
 from torm.perception import METHODS, Perception
 from torm.reconstruction.api import ReconstructionConfig
+from torm.resources import check_trial_fits
 from torm.runtime import configure_threads, ensure_headless_gl
 
 log = logging.getLogger(__name__)
@@ -201,6 +203,8 @@ class TrialConfig:
 
     def __post_init__(self) -> None:
         check_finite(self, "TrialConfig")  # NaN / inf in any float field of any section (torm.config)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"seed must be a non-negative integer (0, 1, 2, ...), got {self.seed!r}")
         if self.method not in METHODS:
             raise UnknownNameError("method", self.method, METHODS)
         if self.table not in TABLE_SOURCES:
@@ -298,30 +302,43 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
             outcome into, or a :class:`torm.viz.TrialRecorder` to use.
     """
     configure_threads()
+    check_trial_fits(config.capture.n_views, config.capture.scale)  # before any work (torm.resources)
     t_trial = time.perf_counter()
     rng = np.random.default_rng(config.seed)
     timings: dict[str, float] = {}
-    t = time.perf_counter()
-    own_backend = backend is None
-    backend = backend or make_backend(config)
-    timings["setup"] = time.perf_counter() - t
     result: dict[str, Any] = {
         "scenario": config.scenario, "seed": config.seed, "method": config.method, "backend": config.backend,
         "context": trial_context(config), "config": to_dict(config), "versions": versions(), "timings": timings,
         "objects": [], "failure": None,
     }
+    own_backend = backend is None
     recorder = None
     judge = None
-    try:
+    try:  # the backend opens inside the guarded block: any failure from here on closes it (a real arm: disabled)
+        t = time.perf_counter()
+        backend = backend or make_backend(config)
+        timings["setup"] = time.perf_counter() - t
         if record:
             from torm.viz import TrialRecorder
 
             recorder = TrialRecorder(record) if isinstance(record, (str, Path)) else record
             _attach_recorder(recorder, backend)
+        check_grip_force(config.pick.grip_force, backend.gripper)  # a configured force the gripper cannot command
         realism = getattr(backend, "realism", None)
         result["realism"] = realism.as_dict() if realism is not None else {"profile": config.world.realism}
         if realism is not None and realism.grip_force_n is not None:  # the drawn pad force is what the pick requests
-            config = replace(config, pick=replace(config.pick, grip_force=realism.grip_force_n))
+            drawn = float(realism.grip_force_n)
+            lo, hi = getattr(backend.gripper, "force_range_n", (drawn, drawn))
+            used = min(max(drawn, lo), hi)  # a stress draw may leave the range: clipped, recorded, warned once
+            result["config_used"] = {"pick.grip_force": {
+                "configured": config.pick.grip_force, "drawn": drawn, "used": used,
+                "why": f"drawn by the {realism.profile!r} realism profile (sim/REALISM.md)"
+                       + ("" if used == drawn else f"; clipped to the gripper's {lo:g}-{hi:g} N")}}
+            if used != drawn:
+                log.warning("realism drew a pad force of %.1f N, outside the gripper's %g-%g N; %.1f N is used",
+                            drawn, lo, hi, used)
+            config = replace(config, pick=replace(config.pick, grip_force=used))
+            result["config"] = to_dict(config)  # the saved config shows the value used, config_used the change
         if getattr(backend, "ground_truth", None) is not None:
             from sim.judge import TrialJudge
 
@@ -338,12 +355,12 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
         result.pop("perceptions", None)
         if judge is not None:
             judge.close()
-        if hasattr(backend, "realism_summary"):
+        if hasattr(backend, "realism_summary") and "realism" in result:
             result["realism"]["applied"] = backend.realism_summary()
         if recorder is not None:
             recorder.finish(result)
             recorder.close()
-        if own_backend:
+        if own_backend and backend is not None:
             backend.close()
     outcomes = [o["outcome"] for o in result["objects"]]
     result["n_objects"] = len(outcomes)

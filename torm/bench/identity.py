@@ -10,7 +10,9 @@ Rows of one run folder must come from one definition of a trial. :func:`run_iden
 - ``files``: SHA-256 of every existing file the resolved config names (a robot YAML, a hardware config,
   ONNX weights), so editing such a file changes the identity too;
 - ``code``: the git commit of the checkout torm runs from, whether it has uncommitted changes and a
-  SHA-256 of those changes (``git diff HEAD``), and the versions of torm's runtime dependencies.
+  SHA-256 of those changes (``git diff HEAD``), a SHA-256 of every installed file of the ``torm`` and ``sim``
+  packages (so an installed copy without git, edited between two runs, is told apart too), and the versions
+  of torm's runtime dependencies.
 
 :func:`identity_hash` is its SHA-256; the runner refuses to resume a folder whose stored identity
 differs and lists the differences (:func:`torm.bench.results.diff_dicts`).
@@ -86,9 +88,31 @@ def dependency_versions() -> dict[str, str | None]:
     return dict(sorted(out.items()))
 
 
+#: Packages whose installed files make up the code of a trial (their hash is part of the run identity).
+CODE_PACKAGES = ("torm", "sim")
+
+
+def package_files_hash(packages: tuple[str, ...] = CODE_PACKAGES) -> str:
+    """SHA-256 (hex) of every file of the installed ``packages`` (relative path and content; ``__pycache__``
+    and ``.pyc`` skipped): the code that runs, with or without git (an installed copy edited in place, a wheel,
+    untracked files in a checkout). 228 files, 8.6 MB, 0.1 s for torm and sim (2026-12-05)."""
+    import importlib
+
+    h = hashlib.sha256()
+    for name in packages:
+        root = Path(importlib.import_module(name).__file__).resolve().parent
+        files = sorted(p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts
+                       and p.suffix != ".pyc")
+        for p in files:
+            h.update(f"{name}/{p.relative_to(root).as_posix()}\0".encode())
+            h.update(hashlib.sha256(p.read_bytes()).digest())
+    return h.hexdigest()
+
+
 def code_version() -> dict[str, Any]:
-    """``{"git": git_state(), "packages": dependency_versions()}``."""
-    return {"git": git_state(), "packages": dependency_versions()}
+    """``{"git": git_state(), "files_sha256": package_files_hash(), "packages": dependency_versions()}``: two runs
+    of different code differ even without git (:func:`package_files_hash`)."""
+    return {"git": git_state(), "files_sha256": package_files_hash(), "packages": dependency_versions()}
 
 
 def _file_id(p: Path) -> str:
@@ -139,4 +163,5 @@ def identity_hash(identity: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-__all__ = ["code_version", "dependency_versions", "git_state", "identity_hash", "referenced_files", "run_identity"]
+__all__ = ["CODE_PACKAGES", "code_version", "dependency_versions", "git_state", "identity_hash", "package_files_hash",
+           "referenced_files", "run_identity"]

@@ -28,6 +28,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -167,6 +168,7 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
         env[name] = str(job.threads)
     env.setdefault("MUJOCO_GL", "egl")
     env["PYTHONUNBUFFERED"] = "1"
+    stop = prepare_driver_stop(spec, job)  # before the trial: after a SIGKILL only the stop itself is left
     started, t0 = utc_now(), time.monotonic()
     status = None
     proc = None
@@ -191,6 +193,8 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
             rc = proc.returncode
         except BaseException:  # interrupted while waiting (e.g. a Ray task cancelled): stop the worker cleanly
             stop_groups([proc], job.stop_grace_s)
+            if _stop_path_skipped(None, proc.returncode, result_path):
+                driver_stop(stop, spec.key)
             raise
         finally:
             if canceller is not None:
@@ -201,6 +205,7 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
                 with contextlib.suppress(ProcessLookupError, PermissionError):
                     os.killpg(proc.pid, signal.SIGKILL)
         wall = time.monotonic() - t0
+        stopped = driver_stop(stop, spec.key) if _stop_path_skipped(status, rc, result_path) else None
         if canceller is not None and canceller.stop.is_set():
             raise InterruptedError("benchmark cancelled while the trial ran")
         row = _row(spec, job, status, rc, result_path)
@@ -209,6 +214,8 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
                       "finished": utc_now(), "wall_s": round(wall, 3), "threads": job.threads,
                       "session": job.session, "returncode": rc, "log": None, "recording": None,
                       "log_tail": _tail(log_path) if row["status"] != "ok" else None}
+        if stopped is not None:
+            row["run"]["driver_stop"] = stopped
         if failed and job.logs_dir:
             try:
                 Path(job.logs_dir).mkdir(parents=True, exist_ok=True)
@@ -225,6 +232,41 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
         return row
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+def prepare_driver_stop(spec: TrialSpec, job: TrialJob) -> Callable[[], Any] | None:
+    """The trial module's optional ``safe_stop(spec, overrides)`` hook (:mod:`torm.bench.trial`), called before
+    the trial starts: the driver-side stop of a trial whose process dies without its own stop path (a real arm:
+    cancel, disable), ready to run. None without a hook or with nothing to stop. Never raises: a failing hook is
+    logged and returns a callable that reports the error."""
+    import importlib
+
+    try:
+        module = importlib.import_module(job.trial_fn.partition(":")[0])
+        hook = getattr(module, "safe_stop", None)
+        return hook(spec, tuple(job.overrides)) if callable(hook) else None
+    except Exception as exc:  # noqa: BLE001 - reported with the row, never raised
+        log.error("preparing the driver-side stop of %s failed: %s", spec.key, exc)
+        message = f"{type(exc).__name__}: {exc}"
+        return lambda: {"error": message}
+
+
+def driver_stop(stop: Callable[[], Any] | None, key: str = "") -> Any:
+    """Run a prepared driver-side stop (:func:`prepare_driver_stop`); its report, or None when there was
+    nothing to stop. Never raises (a driver must go on stopping the other trials)."""
+    if stop is None:
+        return None
+    try:
+        return stop()
+    except Exception as exc:  # noqa: BLE001
+        log.error("driver-side stop of %s failed: %s", key, exc)
+        return {"error": f"{type(exc).__name__}: {exc}"}
+
+
+def _stop_path_skipped(status: str | None, rc: int | None, result_path: Path) -> bool:
+    """True when the worker did not end on its own with a result (killed, crashed, timed out): its stop path
+    (a real arm's cancel and disable) may not have run."""
+    return status == "timeout" or not result_path.exists() or (rc is not None and rc < 0)
 
 
 def timeout_message(timeout_s: float) -> str:
@@ -250,4 +292,4 @@ def _row(spec: TrialSpec, job: TrialJob, status: str | None, rc: int | None, res
     return failure_row(spec, "crashed", "crashed", f"worker process {how} without a result (see run.log_tail)")
 
 
-__all__ = ["Canceller", "TrialJob", "run_isolated", "safe_name"]
+__all__ = ["Canceller", "TrialJob", "driver_stop", "prepare_driver_stop", "run_isolated", "safe_name"]

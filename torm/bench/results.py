@@ -124,7 +124,9 @@ def read_results(path: str | Path, strict: bool = False) -> ResultsFile:
     data = p.read_bytes()
     lines = data.split(b"\n")
     tail = lines.pop()  # b"" when the file ends with a newline
-    if tail.strip():
+    if tail.strip() and _complete_row(tail):
+        lines.append(tail)  # a complete row that only lacks its newline: kept (repair_tail adds the newline)
+    elif tail.strip():
         out.truncated = True
         msg = (f"{p}: line {len(lines) + 1} is incomplete (no newline; an interrupted write) "
                f"and was dropped: {tail[:80]!r}")
@@ -169,17 +171,34 @@ def attempt(row: dict[str, Any]) -> int:
         return 1
 
 
+def _complete_row(raw: bytes) -> bool:
+    """True when ``raw`` is a whole result row (a JSON object with a ``key``)."""
+    try:
+        row = json.loads(raw)
+    except ValueError:
+        return False
+    return isinstance(row, dict) and isinstance(row.get("key"), str)
+
+
 def repair_tail(path: str | Path) -> Path | None:
     """Cut an incomplete last line off ``path`` before appending; the fragment is saved, not deleted.
 
-    Returns the file the fragment was saved to (``results.jsonl.truncated-<UTC time>``), or None when
-    the file ends cleanly.
+    A last line that is a complete row and lacks only its newline (the write stopped between the row and
+    its ``\n``) is kept and the newline added. Returns the file the fragment was saved to
+    (``results.jsonl.truncated-<UTC time>``), or None when nothing was cut.
     """
     p = Path(path)
     if not p.exists() or p.stat().st_size == 0:
         return None
     data = p.read_bytes()
     if data.endswith(b"\n"):
+        return None
+    if _complete_row(data[data.rfind(b"\n") + 1:]):
+        with open(p, "ab") as f:
+            f.write(b"\n")
+            f.flush()
+            os.fsync(f.fileno())
+        log.warning("%s: the last row lacked its newline (interrupted write); the newline was added", p)
         return None
     cut = data.rfind(b"\n") + 1
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
@@ -190,6 +209,31 @@ def repair_tail(path: str | Path) -> Path | None:
         f.flush()
         os.fsync(f.fileno())
     log.warning("%s: removed an incomplete last line (interrupted write); its bytes are saved in %s", p, saved)
+    return saved
+
+
+def remove_corrupt_lines(path: str | Path, line_numbers: list[int]) -> Path | None:
+    """Move the corrupted lines ``line_numbers`` (1-based, from :func:`read_results`) out of ``path`` into
+    ``<name>.corrupt-<UTC time>`` and rewrite ``path`` without them (temp file + fsync + rename), so a damaged
+    line is reported once, not on every run. Returns the file holding the removed lines (None: nothing to do).
+    The caller holds the run folder's lock."""
+    p = Path(path)
+    if not line_numbers or not p.exists():
+        return None
+    bad = set(line_numbers)
+    lines = p.read_bytes().split(b"\n")
+    keep = [ln for i, ln in enumerate(lines, start=1) if i not in bad]
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
+    saved = p.with_name(f"{p.name}.corrupt-{stamp}")
+    saved.write_bytes(b"".join(f"line {i}: ".encode() + lines[i - 1] + b"\n" for i in sorted(bad)
+                               if i <= len(lines)))
+    tmp = p.with_name(p.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(b"\n".join(keep))
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, p)
+    log.warning("%s: %d corrupted line(s) moved to %s", p, len(bad), saved)
     return saved
 
 
@@ -314,4 +358,4 @@ def comparable(row: dict[str, Any]) -> dict[str, Any]:
 __all__ = ["MANIFEST_NAME", "RESULTS_NAME", "ResultsFile", "VOLATILE_KEYS", "append_row", "attempt", "comparable",
            "diff_dicts",
            "encode_row", "git_revision", "move_aside", "package_versions", "read_manifest", "read_results",
-           "repair_tail", "utc_now", "write_json_atomic"]
+           "remove_corrupt_lines", "repair_tail", "utc_now", "write_json_atomic"]

@@ -14,7 +14,7 @@ Row format (one ``results.jsonl`` line)::
 ``status`` says whether the trial function returned (``ok``) or not; ``failure`` is the trial's own
 failure category (e.g. ``physics_error`` from run_trial) or the runner's (``timeout``, ``crashed``,
 ``error``, ``physics_error``, ``reconstruction_failed``, ``config_error``, ``out_of_memory``,
-``terminated``: the worker got SIGTERM from outside the runner). A trial that never returned gets one
+``terminated``: the worker got SIGTERM or SIGINT from outside the runner). A trial that never returned gets one
 object entry per scenario object with ``outcome`` = the category, so per-object success counts stay
 honest (a timed-out trial counts its objects as failed). A row written by ``--retry failed`` carries
 ``attempt`` (2, 3, ...) and ``retry_of`` (the replaced row's status, failure and session).

@@ -49,6 +49,7 @@ from torm.bench.results import (
     move_aside,
     read_manifest,
     read_results,
+    remove_corrupt_lines,
     repair_tail,
     utc_now,
     write_json_atomic,
@@ -56,12 +57,15 @@ from torm.bench.results import (
 from torm.bench.rows import RETRY_STATUSES, trial_failed
 from torm.bench.spec import BenchConfig, TrialSpec, build_grid, identity, validate_for_trial_fn
 from torm.errors import BenchmarkError, ConfigError
+from torm.resources import available_memory_bytes, check_fits, gib, trial_bytes
 from torm.runtime import free_cores
 
 log = logging.getLogger(__name__)
 
 MANIFEST_FORMAT = "torm-bench/2"
 RETRY_MODES = ("failed",)
+#: Most Ray tasks kept in flight at once (``workers`` with ``engine="ray"``).
+MAX_RAY_WORKERS = 1024
 
 
 def threads_per_trial(config: BenchConfig) -> int:
@@ -135,6 +139,23 @@ def open_run(config: BenchConfig, out_dir: Path, ident: dict[str, Any], fresh: b
     return manifest
 
 
+def check_workers_fit(config: BenchConfig, resolved: dict[str, Any] | None, available: int | None = None) -> None:
+    """Refuse a pool of ``config.workers`` local trial processes that cannot fit in the free memory (each
+    needs :func:`torm.resources.trial_bytes` of its capture); Ray tasks run where Ray places them, bounded by
+    :data:`MAX_RAY_WORKERS` in flight. Raises ConfigError with the largest worker count that fits."""
+    if config.engine == "ray":
+        if config.workers > MAX_RAY_WORKERS:
+            raise ConfigError(f"workers={config.workers}: at most {MAX_RAY_WORKERS} Ray tasks are kept in flight; "
+                              f"use --workers <= {MAX_RAY_WORKERS} (Ray queues the rest of the grid anyway)")
+        return
+    cap = (resolved or {}).get("capture") or {}
+    per = trial_bytes(int(cap.get("n_views", 50)), float(cap.get("scale", 0.5)))
+    free = available_memory_bytes() if available is None else available
+    fit = max(1, int(free // per)) if free else None
+    check_fits(config.workers * per, f"--workers {config.workers} (each trial needs about {gib(per)})",
+               f"use --workers {fit} or fewer" if fit else "use fewer workers", free)
+
+
 def run_benchmark(config: BenchConfig, out_dir: str | Path, fresh: bool = False, progress: bool = True,
                   validate: bool = True, retry: str | None = None) -> dict[str, Any]:
     """Run (or resume) the benchmark into ``out_dir``; returns a summary dict (JSON-ready).
@@ -152,6 +173,11 @@ def run_benchmark(config: BenchConfig, out_dir: str | Path, fresh: bool = False,
     out = Path(out_dir)
     grid = build_grid(config)
     resolved = validate_for_trial_fn(config) if validate else None
+    check_workers_fit(config, resolved)
+    if config.engine == "ray" and config.ray_address:
+        from torm.bench.ray_engine import check_address
+
+        check_address(config.ray_address)  # before the run folder: a dead address is refused in seconds
     ident = run_identity(bench_identity(config, resolved), resolved)
     prepare_folder(out)
     with RunLock(out) as lock:
@@ -175,6 +201,9 @@ def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest:
                        f"{saved}")
     existing = read_results(results_path)
     repairs += [p for p in existing.problems if "is incomplete" not in p]  # read_results logged them once
+    moved = remove_corrupt_lines(results_path, existing.bad_lines)  # reported once, then out of the file
+    if moved is not None:
+        repairs.append(f"{results_path}: {len(existing.bad_lines)} corrupted line(s) were moved to {moved}")
     by_key = {r["key"]: r for r in existing.rows}
     retried = [s.key for s in grid if retry == "failed" and by_key.get(s.key, {}).get("status") in RETRY_STATUSES]
     pending = [s for s in grid if s.key not in by_key or s.key in retried]

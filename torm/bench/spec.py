@@ -124,6 +124,8 @@ class BenchConfig:
             raise ConfigError(f"trials must be >= 1, got {self.trials}")
         if self.workers < 1:
             raise ConfigError(f"workers must be >= 1, got {self.workers}")
+        if self.base_seed < 0:
+            raise ConfigError(f"base_seed must be a non-negative integer, got {self.base_seed}")
         if not self.timeout_s > 0:
             raise ConfigError(f"timeout_s must be > 0 seconds, got {self.timeout_s}")
         if not self.stop_grace_s >= 0:

@@ -14,12 +14,21 @@ write a rerun ``.rrd`` recording there; the runner keeps it for failed trials (`
 trials (``all``). This one writes the same recording as ``torm trial --record`` (:class:`torm.viz.TrialRecorder`:
 saved layout, robot and true objects moving with physics, the capture, reconstructed meshes, grasps, the TCP
 path and the outcome per object) in best-effort mode: a recording problem is logged and never fails the trial.
+
+Stop hook (optional): ``safe_stop(spec, overrides) -> Callable[[], dict] | None`` is called by the benchmark's
+driver before the trial starts (so nothing slow is left for the emergency), and the callable it returns is
+called when the trial's process died without running its own stop path (SIGKILL, out of memory, a segfault,
+a dead Ray worker). This module's hook stops a real arm from the driver
+(:func:`torm.hardware.remote_stop.stop_arm`: cancel every goal, then disable; the callable returns what was
+sent); None when the trial is not on an armed real arm.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from torm.bench.spec import TrialSpec
@@ -64,4 +73,20 @@ def run_spec(spec: TrialSpec, overrides: tuple[str, ...] = (), record_path: str 
     return run_trial(config, record=TrialRecorder(record_path, best_effort=True, recording_id=spec.key))
 
 
-__all__ = ["BENCH_DEFAULTS", "check_overrides", "run_spec", "trial_config"]
+def safe_stop(spec: TrialSpec, overrides: tuple[str, ...] = ()) -> Callable[[], dict[str, Any]] | None:
+    """The driver-side stop of a trial (module docstring), prepared before the trial starts: a callable that
+    cancels every goal and disables an armed real arm over a new connection and returns what was sent; None for
+    simulated, unarmed or dry-run trials (nothing to stop)."""
+    config = trial_config(spec, overrides)
+    if config.backend != "real":
+        return None
+    from torm.hardware.config import resolve_hardware_config
+    from torm.hardware.remote_stop import stop_arm
+
+    hw = resolve_hardware_config(config)
+    if not hw.armed or hw.dry_run:
+        return None
+    return functools.partial(stop_arm, hw, reason=f"trial {spec.key}: its process died without running its stop path")
+
+
+__all__ = ["BENCH_DEFAULTS", "check_overrides", "run_spec", "safe_stop", "trial_config"]

@@ -111,11 +111,13 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(record, dict):
             raise TypeError(f"trial function {job['trial_fn']} returned {type(record).__name__}, not a dict")
         return {"status": "ok", "record": record}
-    except TrialTerminated as exc:
-        log.error("trial %s stopped: %s", spec.key, exc)
-        return {"status": "error", "failure": "terminated", "message": f"stopped by SIGTERM ({exc})",
+    except (TrialTerminated, KeyboardInterrupt) as exc:  # a request to stop from outside, not a failure of the trial
+        how = "SIGTERM" if isinstance(exc, TrialTerminated) else "SIGINT"
+        log.error("trial %s stopped by %s: %s", spec.key, how, exc)
+        return {"status": "error", "failure": "terminated", "message": f"stopped by {how}" + (f" ({exc})" if str(exc)
+                                                                                                else ""),
                 "traceback": traceback.format_exc()[-4000:]}
-    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - every failure becomes a recorded category
+    except Exception as exc:  # noqa: BLE001 - every failure becomes a recorded category
         tb = traceback.format_exc()
         log.error("trial %s failed: %s", spec.key, tb)
         return {"status": "error", "failure": failure_category(exc),

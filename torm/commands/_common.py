@@ -64,6 +64,48 @@ def add_robot(parser: argparse.ArgumentParser, default: str | None, none_ok: boo
                         "--robot: old name, still accepted")
 
 
+def seed_arg(text: str) -> int:
+    """argparse ``type`` of a ``--seed``: a non-negative integer (numpy's generators refuse negative seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; give a seed 0, 1, 2, ...") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative; give a seed 0, 1, 2, ...")
+    return value
+
+
+def count_arg(text: str) -> int:
+    """argparse ``type`` of a count (``--views``, ``--workers``, ``--trials``): a positive integer."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; give a count >= 1") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not a count; give a number >= 1")
+    return value
+
+
+def check_output_dir(path: str | os.PathLike, flag: str = "--out") -> Path:
+    """Make sure the folder ``path`` can be created and written before any work starts; returns it.
+
+    Creates the folder (and its parents) and writes, then removes, a probe file in it. OutputError naming
+    ``flag`` when ``path`` or a parent is a file, or the location is not writable.
+    """
+    p = Path(path).expanduser()
+    for parent in [p, *p.parents]:
+        if parent.exists() and not parent.is_dir():
+            raise OutputError(f"{flag} {p}: {parent} is a file, not a folder; choose another output folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=p, prefix=".probe.", suffix=".tmp"):
+            pass
+    except OSError as exc:
+        raise OutputError(f"{flag} {p}: cannot write there ({exc.strerror or exc}); choose a writable "
+                          "location") from exc
+    return p
+
+
 def _default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()

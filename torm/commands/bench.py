@@ -24,7 +24,7 @@ import argparse
 import signal
 from typing import Any
 
-from torm.commands._common import add_parser, print_json
+from torm.commands._common import add_parser, count_arg, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,10 +35,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--suite", default="rw", help="scenario suite (rw, syn; default rw)")
     p.add_argument("--scenario", action="append", default=[], metavar="NAME",
                    help="only these scenarios of the suite (repeatable or comma-separated; default all)")
-    p.add_argument("--trials", type=int, default=1, help="trials per scenario and method (default 1)")
+    p.add_argument("--trials", type=count_arg, default=1, help="trials per scenario and method (default 1)")
     p.add_argument("--method", action="append", default=[], metavar="METHOD",
                    help=f"perception method(s) {', '.join(METHODS)} (repeatable or comma-separated; default torm)")
-    p.add_argument("--workers", type=int, default=1, help="trials at the same time (default 1)")
+    p.add_argument("--workers", type=count_arg, default=1, help="trials at the same time (default 1)")
     p.add_argument("--out", required=True, help="run folder (created; resumed when it exists)")
     p.add_argument("--engine", choices=ENGINES, default="pool", help="pool: local processes (default); ray: Ray tasks")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")

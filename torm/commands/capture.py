@@ -16,17 +16,25 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
-from torm.commands._common import add_overrides, add_parser, add_record, add_robot, print_json
+from torm.commands._common import (
+    add_overrides,
+    add_parser,
+    add_record,
+    add_robot,
+    check_output_dir,
+    count_arg,
+    print_json,
+    seed_arg,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "capture", __doc__,
                    help="render a simulated multi-view capture of a scenario to a folder")
     p.add_argument("--scenario", required=True, help="scenario name (see `torm scenes list`)")
-    p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
-    p.add_argument("--views", type=int, default=None, help="number of views (default: the rig config's, 50)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="layout seed (default 0)")
+    p.add_argument("--views", type=count_arg, default=None, help="number of views (default: the rig config's, 50)")
     p.add_argument("--width", type=int, default=None, help="image width in pixels (default 1280)")
     p.add_argument("--height", type=int, default=None, help="image height in pixels (default 720)")
     p.add_argument("--scale", type=float, default=None, help="scale the image size (e.g. 0.5 -> 640x360)")
@@ -53,12 +61,17 @@ def run(args: argparse.Namespace) -> int:
     from sim.world import build_world
     from torm import config as cfgmod
     from torm.capture.io import save_capture
+    from torm.resources import TRIAL_BASE_BYTES, capture_bytes, check_fits
 
     overrides = list(args.overrides)
     for flag, key in ((args.views, "n_views"), (args.width, "width"), (args.height, "height"), (args.scale, "scale")):
         if flag is not None:
             overrides.append(f"{key}={flag}")
     rig_cfg = cfgmod.load(CameraRigConfig, args.config, overrides)
+    out_dir = check_output_dir(args.out)  # before any work: a bad --out is refused now, not after the capture
+    w, h = round(rig_cfg.width * rig_cfg.scale), round(rig_cfg.height * rig_cfg.scale)
+    check_fits(TRIAL_BASE_BYTES + capture_bytes(rig_cfg.n_views, w, h), f"{rig_cfg.n_views} views of {w}x{h} px",
+               "use fewer views (--views) or a smaller --scale")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     world = build_world(args.scenario, args.seed, robot=None if args.robot_config == "none" else args.robot_config)
@@ -85,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         cap.metadata["occlusion"] = occ.summary()
         cap.metadata["occlusion"]["view_flags"] = occ.view_flags.astype(int).tolist()
     t0 = time.perf_counter()
-    path = save_capture(cap, Path(args.out))
+    path = save_capture(cap, out_dir)
     timings["save_s"] = time.perf_counter() - t0
     if args.record:
         import rerun as rr

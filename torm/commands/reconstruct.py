@@ -30,12 +30,11 @@ import argparse
 import dataclasses
 import json
 import logging
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from torm.commands._common import add_overrides, add_parser, add_record, print_json
+from torm.commands._common import add_overrides, add_parser, add_record, check_output_dir, print_json
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from torm.reconstruction import ReconstructionConfig, reconstruct
     from torm.segmentation.base import mask_reference, masks_are_ground_truth
 
+    out = check_output_dir(args.out)  # before any work: a bad --out is refused now, not after the reconstruction
     capture = load_capture(args.capture_dir)
     input_ref = mask_reference(capture)
     gt_masks = capture.masks() if masks_are_ground_truth(capture) else None
@@ -133,8 +133,6 @@ def run(args: argparse.Namespace) -> int:
     held = [i for i in range(len(capture)) if args.holdout_every and i % args.holdout_every == 0]
     used = [i for i in range(len(capture)) if i not in set(held)]
     rec = reconstruct(capture.subset(used) if held else capture, cfg)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     write_mesh(rec.scene_mesh, out / "scene.ply")
     files = []
     for k, (mesh, cloud) in enumerate(zip(rec.object_meshes, rec.point_clouds, strict=True)):

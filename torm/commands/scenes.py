@@ -18,10 +18,9 @@ from __future__ import annotations
 import argparse
 import time
 import traceback
-from pathlib import Path
 from typing import Any
 
-from torm.commands._common import add_parser, add_record, add_robot, print_json
+from torm.commands._common import add_parser, add_record, add_robot, check_output_dir, count_arg, print_json, seed_arg
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -42,8 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     ps = sub.add_parser("show", help="render a few views of a scenario to PNGs (and a rerun .rrd)")
     ps.add_argument("--scenario", required=True, help="scenario name")
-    ps.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
-    ps.add_argument("--views", type=int, default=6, help="number of views (default 6)")
+    ps.add_argument("--seed", type=seed_arg, default=0, help="layout seed (default 0)")
+    ps.add_argument("--views", type=count_arg, default=6, help="number of views (default 6)")
     ps.add_argument("--width", type=int, default=640, help="image width (default 640)")
     ps.add_argument("--height", type=int, default=360, help="image height (default 360)")
     ps.add_argument("--out", required=True, help="folder for the PNGs")
@@ -114,12 +113,11 @@ def run_show(args: argparse.Namespace) -> int:
     from sim.world import build_world
     from torm.viz import instance_colors
 
+    out = check_output_dir(args.out)
     world = build_world(args.scenario, args.seed, robot=_robot(args.robot_config))
     cfg = CameraRigConfig(n_views=args.views, width=args.width, height=args.height)
     with SimCameraRig.from_world(world, cfg) as rig:
         cap = rig.capture()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     colors = instance_colors(max(cap.object_ids, default=0))
     files: list[str] = []
 

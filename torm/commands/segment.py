@@ -34,7 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from torm.commands._common import add_overrides, add_parser, print_json
+from torm.commands._common import add_overrides, add_parser, check_output_dir, print_json, seed_arg
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "grounded_sam needs your ONNX exports)")
     p.add_argument("--prompt", default=None, help="grounded_sam text prompt, phrases separated by '.'")
     p.add_argument("--preset", default=None, help="noisy: error preset (none, mild, moderate, severe, paper, ...)")
-    p.add_argument("--seed", type=int, default=None, help="noisy: corruption seed")
+    p.add_argument("--seed", type=seed_arg, default=None, help="noisy: corruption seed")
     p.add_argument("--check-views", choices=("none", "flag", "drop"), default="none",
                    help="cross-view consistency checks: report (flag) or remove (drop) inconsistent views")
     p.add_argument("--out", default=None, help="output capture folder (default CAPTURE_DIR_<segmenter>)")
@@ -98,6 +98,12 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides.append(f"seed={args.seed}")
     config = load_segmenter_config(name, args.config, overrides)
+    out = Path(args.out) if args.out else Path(str(Path(args.capture_dir).resolve()) + f"_{name}")
+    if out.resolve() == Path(args.capture_dir).resolve():
+        from torm.errors import SegmentationError
+
+        raise SegmentationError(f"--out {out} is the input capture; write the segmented capture to another folder")
+    check_output_dir(out)  # before the segmentation, not after it
     capture = load_capture(args.capture_dir)
     segmenter = make_segmenter(name, config)
     result = segmenter.segment(capture)
@@ -126,11 +132,6 @@ def run(args: argparse.Namespace) -> int:
     meta[MASK_SOURCE_KEY] = out_cap.metadata.get(MASK_SOURCE_KEY, f"segmenter {name}")
     meta["segmentation"] = _json_safe({k: v for k, v in summary.items() if k != "instances_per_view"})
     out_cap = replace(out_cap, object_ids=tuple(pred_ids), object_names=tuple(names), metadata=meta)
-    out = Path(args.out) if args.out else Path(str(Path(args.capture_dir).resolve()) + f"_{name}")
-    if out.resolve() == Path(args.capture_dir).resolve():
-        from torm.errors import SegmentationError
-
-        raise SegmentationError(f"--out {out} is the input capture; write the segmented capture to another folder")
     path = save_capture(out_cap, out)
     if gt is not None:
         rel = _write_gt_masks(out, gt[kept])

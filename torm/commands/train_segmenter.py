@@ -20,7 +20,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from torm.commands._common import add_overrides, add_parser, print_json
+from torm.commands._common import add_overrides, add_parser, count_arg, print_json
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="ONNX output (default <work>/learned_seg.onnx)")
     p.add_argument("--install", action="store_true", help="write the ONNX + card into the package (models/)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: train.threads)")
-    p.add_argument("--workers", type=int, default=1,
+    p.add_argument("--workers", type=count_arg, default=1,
                    help="processes rendering missing shards, one core each (the data do not depend on it)")
     p.add_argument("--no-eval", dest="evaluate", action="store_false", help="skip the held-out evaluation")
     p.add_argument("--export-only", action="store_true",

@@ -31,7 +31,9 @@ from torm.commands._common import (
     add_record,
     add_robot,
     check_output_file,
+    count_arg,
     print_json,
+    seed_arg,
     write_json_file,
 )
 
@@ -41,14 +43,14 @@ log = logging.getLogger(__name__)
 def register(sub: argparse._SubParsersAction) -> None:
     p = add_parser(sub, "trial", __doc__, help="run one closed-loop grasp trial and print its JSON result")
     p.add_argument("--scenario", default=None, help="scenario name (torm scenes list); default rw3")
-    p.add_argument("--seed", type=int, default=None, help="layout / noise seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=None, help="layout / noise seed (default 0)")
     p.add_argument("--method", choices=("torm", "depth", "depth_fusion", "oracle"), default=None,
                    help="perception: torm (reconstruction), depth (single-view depth, symmetric completion), "
                    "depth_fusion (TSDF fusion of every view's depth), oracle (true meshes)")
     p.add_argument("--segmenter", choices=("gt", "noisy", "grounded_sam", "learned"), default=None,
                    help="silhouette source for --method torm (default gt)")
     p.add_argument("--preset", default=None, help="error-model preset for --segmenter noisy (default paper)")
-    p.add_argument("--views", type=int, default=None, help="number of views (default 50)")
+    p.add_argument("--views", type=count_arg, default=None, help="number of views (default 50)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
     add_robot(p, None)
     p.add_argument("--hardware-config", default=None, metavar="FILE",

@@ -90,3 +90,22 @@ class PickConfig:
             raise ConfigError(f"PickConfig.speed_scale must be in (0, 1], got {self.speed_scale}")
         if self.max_candidates < 1:
             raise ConfigError(f"PickConfig.max_candidates must be >= 1, got {self.max_candidates}")
+
+
+def check_grip_force(force_n: float, gripper: object, key: str = "pick.grip_force") -> None:
+    """Refuse a pad force (N) the gripper cannot command, before any work starts.
+
+    ``gripper.force_range_n`` (``(low, high)`` in N, e.g. 20-235 N for a Robotiq 2F-85) is the range a
+    command is clipped to; a configured value outside it would be clipped without a word (1e-7 N commanded
+    as 20 N). Grippers that do not state a range are not checked.
+
+    Raises:
+        ConfigError: naming ``key``, the value, the range and the fix.
+    """
+    rng = getattr(gripper, "force_range_n", None)
+    if rng is None:
+        return
+    lo, hi = (float(v) for v in rng)
+    if not lo <= float(force_n) <= hi:
+        raise ConfigError(f"{key}={force_n:g} N is outside the gripper's pad force range {lo:g}-{hi:g} N (it would be "
+                          f"commanded as {min(max(float(force_n), lo), hi):g} N); set {key} inside {lo:g}-{hi:g}")

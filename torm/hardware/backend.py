@@ -32,6 +32,7 @@ from torm.execution.trajectory import chain_waypoints
 from torm.geometry import invert_T
 from torm.hardware.command_log import CommandLog
 from torm.hardware.config import HardwareConfig, resolve_hardware_config
+from torm.hardware.robotiq import FORCE_RANGE_N
 from torm.hardware.rosbridge import InovoArm, MujocoKinematics
 from torm.types import Capture
 
@@ -53,6 +54,7 @@ class DryRunGripper:
 
     def __init__(self, command_log: CommandLog, max_width: float = 0.085) -> None:
         self.max_width = float(max_width)
+        self.force_range_n = FORCE_RANGE_N  # what the real 2F-85 would clip a command to (N)
         self._log = command_log
         self._width = self.max_width
 

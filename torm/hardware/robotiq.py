@@ -181,7 +181,9 @@ class RobotiqGripper:
         self.move_timeout_s = move_timeout_s
         self.activate_timeout_s = activate_timeout_s
         self.max_width = float(self.calibration.open_width)
+        self.force_range_n = FORCE_RANGE_N  # a force command is clipped to this (N)
         self._log = command_log
+        self._warned_force = False
         self._last = (0, 0, 0)  # rPR, rSP, rFR
 
     def _record(self, kind: str, **payload) -> None:
@@ -243,6 +245,11 @@ class RobotiqGripper:
         if not (np.isfinite(width_m) and np.isfinite(speed_mps) and np.isfinite(force_n)):
             raise HardwareError(f"gripper move needs finite width/speed/force, got {width_m}, {speed_mps}, {force_n}")
         rPR = self.calibration.width_to_count(float(width_m))
+        lo, hi = FORCE_RANGE_N
+        if not lo <= force_n <= hi and not self._warned_force:
+            self._warned_force = True
+            log.warning("gripper: a force of %g N was asked for, outside the 2F-85's %g-%g N; %g N is commanded",
+                        force_n, lo, hi, min(max(force_n, lo), hi))
         st = self.move_count(rPR, speed_to_byte(speed_mps), force_to_byte(force_n))
         state = self._to_state(st)
         log.debug("gripper to %.4f m (rPR %d): at %.4f m, gOBJ %d", width_m, rPR, state.width, st.gOBJ)
