@@ -69,7 +69,8 @@ class SimBackendConfig:
         max_contact_force: largest contact constraint force before the simulation counts as exploded (N).
         max_object_speed: largest free-body linear speed before the simulation counts as exploded (m/s).
         reach_check: check at start-up which share of the workspace the arm reaches (:mod:`sim.robot_reach`).
-        reach_min_share: refuse the robot (SceneError naming ``base_pose``) when it reaches less than this share.
+        reach_min_share: refuse the robot (SceneError naming ``base_pose``) when it reaches less than this share;
+            None = the robot config's ``reach_min_share`` (robot YAML, default 0.75).
     """
 
     control_dt: float = 0.002
@@ -86,7 +87,7 @@ class SimBackendConfig:
     max_contact_force: float = 5000.0
     max_object_speed: float = 10.0
     reach_check: bool = True
-    reach_min_share: float = 0.75
+    reach_min_share: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("control_dt", "settle_time", "settle_speed", "gripper_timeout", "gripper_stall_speed",
@@ -101,7 +102,7 @@ class SimBackendConfig:
         if not 0 < lo < hi:
             raise ConfigError(f"SimBackendConfig.gripper_force_range {self.gripper_force_range} must be "
                               "0 < lo < hi (N)")
-        if not 0.0 <= self.reach_min_share <= 1.0:
+        if self.reach_min_share is not None and not 0.0 <= self.reach_min_share <= 1.0:
             raise ConfigError(f"SimBackendConfig.reach_min_share must be in [0, 1], got {self.reach_min_share}")
 
 
@@ -282,10 +283,11 @@ class SimGripper:
         self._requested_n = self.force_n
         self._setting = float(self._forcerange0[1])
         self._warned: set[str] = set()
-        if g.force_map is None:
-            log.warning("gripper of robot %s has no force_map: the actuator force limit is taken as the pad force "
-                        "(true only for a direct slide/tendon drive); measure one with "
-                        "python -m sim.robots.measure_gripper ROBOT --force", sim.rcfg.name)
+        from sim.robot_ids import force_map_problem
+
+        why = force_map_problem(m, sim.rcfg, ids)
+        if why:  # a config built in Python without load_robot_config's check
+            raise SceneError(why)
 
     def reset(self) -> None:
         """Forget the last command (after a world reset) and restore the actuator's force range."""
@@ -334,6 +336,11 @@ class SimGripper:
                 self._warn_once("lo", "requested pad force %.1f N is below the %.1f N the gripper's force map starts "
                                 "at (%.1f mm); using %.1f N", f, lo, width * 1e3, lo)
             setting = fmap.setting_for(f, width)
+        authored = float(self._forcerange0[1]) if self._forcelimited0 else float("inf")
+        if setting > authored + 1e-9:
+            self._warn_once("above_mjcf", "pad force %.1f N needs an actuator force limit of %.3g at %.1f mm, above "
+                            "the MJCF's own %.3g; the limit is raised to it (grip_force.setting records the value "
+                            "used)", f, setting, width * 1e3, authored)
         self._setting = float(setting)
         m = self._sim.model
         m.actuator_forcelimited[self._act] = 1
@@ -475,7 +482,9 @@ class SimBackend:
         if self.config.reach_check:
             from sim.robot_reach import require_reach
 
-            self.reach = require_reach(self.robot_config, world.workspace_bounds, self.config.reach_min_share,
+            share = self.config.reach_min_share
+            self.reach = require_reach(self.robot_config, world.workspace_bounds,
+                                       self.robot_config.reach_min_share if share is None else share,
                                        table_height=world.table_height)
         self._sim = _Sim(world, self.robot_config, self.config)
         self.limits = safety_limits(self.robot_config, self.config)

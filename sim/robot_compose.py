@@ -12,7 +12,12 @@ models and the plan-time collision checker alike, so the robot is the same every
   the compiler of the file it came from;
 * keyframes are dropped (the home pose is ``arm.home``);
 * ``gravcomp`` (when not None) sets every robot body's ``gravcomp`` to 1 or 0;
-* ``base_pose`` moves every top-level element of the robot into one frame at that pose in the world.
+* ``base_pose`` moves every top-level element of the robot into one frame at that pose in the world;
+* lights in the robot files are removed (with a warning): the scene lights the images, and a lamp on a
+  robot would change every capture;
+* the arm joints' ranges are set to ``arm.position_limits`` (which must lie inside the MJCF's ranges), so the
+  IK, the simulated joints and the safety layer share one set of limits;
+* ``gripper.define_tcp`` adds the TCP site a gripper file lacks (named ``arm.tcp_site``).
 
 Units: m, rad; quaternions wxyz.
 """
@@ -154,13 +159,65 @@ def set_gravcomp(spec: mujoco.MjSpec, on: bool) -> int:
     return len(bodies)
 
 
+_warned_lights: set[str] = set()
+
+
+def strip_lights(spec: mujoco.MjSpec, where: str) -> int:
+    """Delete every light of ``spec`` (warned once per ``where``); returns how many there were."""
+    lights = list(spec.lights)
+    for light in lights:
+        spec.delete(light)
+    if lights and where not in _warned_lights:
+        _warned_lights.add(where)
+        log.warning("%s: removed %d <light> element(s) from the robot files; the scene provides the lighting "
+                    "(a lamp on the robot would change every captured image)", where, len(lights))
+    return len(lights)
+
+
+def apply_joint_limits(spec: mujoco.MjSpec, rcfg: RobotConfig) -> None:
+    """Set the range of every arm joint to ``arm.position_limits`` (rad): one set of limits everywhere."""
+    for name, (lo, hi) in zip(rcfg.arm.joints, rcfg.arm.position_limits, strict=True):
+        joint = spec.joint(name)
+        if joint is None:
+            continue  # reported by RobotConfig.validate_against with the other missing names
+        scale = 180.0 / np.pi if spec.compiler.degree and joint.type == mujoco.mjtJoint.mjJNT_HINGE else 1.0
+        mlo, mhi = (float(v) / scale for v in joint.range)
+        limited = joint.limited == mujoco.mjtLimited.mjLIMITED_TRUE or (
+            joint.limited == mujoco.mjtLimited.mjLIMITED_AUTO and mlo < mhi)
+        if limited and (lo < mlo - 1e-6 or hi > mhi + 1e-6):
+            raise SceneError(f"robot {rcfg.name!r}: joint {name!r} limits [{lo}, {hi}] exceed the MJCF range "
+                             f"[{mlo:.6g}, {mhi:.6g}] (rad); arm.position_limits must lie inside it")
+        joint.range = [float(lo) * scale, float(hi) * scale]  # in the units of the file the joint came from
+        joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+
+
+def add_tcp_site(spec: mujoco.MjSpec, rcfg: RobotConfig) -> None:
+    """Add ``gripper.define_tcp`` as a site named ``arm.tcp_site`` (SceneError naming the bodies if absent)."""
+    d = rcfg.gripper.define_tcp
+    if d is None:
+        return
+    body = spec.body(d.body)
+    if body is None:
+        raise SceneError(f"robot {rcfg.name!r}: gripper.define_tcp.body {d.body!r} is not a body of the composed "
+                         f"model; bodies: {[b.name for b in spec.bodies if b.name and b.name != 'world']}")
+    if spec.site(rcfg.arm.tcp_site) is not None:
+        raise SceneError(f"robot {rcfg.name!r}: the model already has a site {rcfg.arm.tcp_site!r}; drop "
+                         "gripper.define_tcp or name another arm.tcp_site")
+    body.add_site(name=rcfg.arm.tcp_site, pos=list(map(float, d.pos)), quat=list(map(float, d.quat)),
+                  size=[0.005, 0.005, 0.005], group=4)
+
+
 def robot_spec(rcfg: RobotConfig) -> mujoco.MjSpec:
-    """A fresh MjSpec of the robot alone: composed, keyframes dropped, gravcomp applied, base at ``base_pose``."""
+    """A fresh MjSpec of the robot alone: composed, keyframes and lights dropped, the arm's joint limits and a
+    declared TCP site applied, gravcomp applied, base at ``base_pose``."""
     if rcfg.mjcf is not None:
         spec = _load(rcfg.mjcf, "mjcf")
         _drop_keyframes(spec)
     else:
         spec = attach_gripper(rcfg)
+    strip_lights(spec, f"robot {rcfg.name!r}")
+    apply_joint_limits(spec, rcfg)
+    add_tcp_site(spec, rcfg)
     if rcfg.gravcomp is not None:
         set_gravcomp(spec, rcfg.gravcomp)
     if not rcfg.base_pose.is_identity:

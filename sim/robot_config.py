@@ -102,7 +102,8 @@ class ArmConfig:
         position_limits: (n, 2) [lower, upper] joint limits (rad), within the MJCF joint ranges.
         velocity_limits: (n,) joint speed limits (rad/s).
         acceleration_limits: (n,) joint acceleration limits (rad/s^2).
-        home: (n,) "ready" joint configuration (rad).
+        home: (n,) "ready" joint configuration (rad); None (left out) = solved on load: the TCP above the
+            reconstruction box, pointing down (:func:`solve_home`; the value is logged).
         mjcf: the arm's own MJCF (absolute after loading) when the gripper comes from ``gripper.mjcf``;
             None with a pre-combined top-level ``mjcf``.
         actuators: position actuators driving ``joints``, same order (ctrl = joint target, rad); None (or a
@@ -115,7 +116,7 @@ class ArmConfig:
     position_limits: tuple[tuple[float, float], ...]
     velocity_limits: tuple[float, ...]
     acceleration_limits: tuple[float, ...]
-    home: tuple[float, ...]
+    home: tuple[float, ...] | None = None
     mjcf: Path | None = None
     actuators: tuple[str | None, ...] | None = None
 
@@ -125,7 +126,9 @@ class ArmConfig:
             raise ConfigError("arm.joints is empty; list the arm's joint names in kinematic order")
         if len(set(self.joints)) != n:
             raise ConfigError(f"arm.joints has duplicates: {list(self.joints)}")
-        names = ["position_limits", "velocity_limits", "acceleration_limits", "home"]
+        names = ["position_limits", "velocity_limits", "acceleration_limits"]
+        if self.home is not None:
+            names.append("home")
         if self.actuators is not None:
             names.append("actuators")
         for name in names:
@@ -139,7 +142,7 @@ class ArmConfig:
             bad = [j for j, v in zip(self.joints, getattr(self, name), strict=True) if not v > 0]
             if bad:
                 raise ConfigError(f"arm.{name} must be positive; check joints {bad}")
-        outside = [j for j, q, (lo, hi) in zip(self.joints, self.home, self.position_limits, strict=True)
+        outside = [j for j, q, (lo, hi) in zip(self.joints, self.home or (), self.position_limits, strict=False)
                    if not lo <= q <= hi]
         if outside:
             raise ConfigError(f"arm.home is outside arm.position_limits for joints {outside}")
@@ -162,6 +165,9 @@ class ArmConfig:
     @property
     def home_q(self) -> np.ndarray:
         """(n,) home joint configuration (rad)."""
+        if self.home is None:
+            raise ConfigError("arm.home is not set and was not solved; load the robot with load_robot_config, which "
+                              "solves it, or give arm.home in the YAML")
         return np.array(self.home)
 
 
@@ -210,6 +216,35 @@ class GripperGeometry:
             raise ConfigError(f"gripper.geometry.max_opening {self.max_opening} must be in (0, 1) m")
         if not self.finger_depth > 0:
             raise ConfigError("gripper.geometry.finger_depth must be positive (m)")
+        from dataclasses import asdict
+
+        from torm.grasp.gripper import GripperGeometry as PlannerGeometry
+
+        try:  # the grasp planner's rules (finger and palm boxes must agree), checked when the YAML loads
+            PlannerGeometry.from_robot_config(asdict(self))
+        except ConfigError as exc:
+            raise ConfigError(f"gripper.{exc}") from exc
+
+
+@dataclass(frozen=True)
+class TcpSiteDeclaration:
+    """A TCP site the gripper file lacks, added on composing (Menagerie hands often have none).
+
+    Attributes:
+        body: the body (name in the composed model, i.e. with ``gripper.prefix``) the site is fixed to.
+        pos: (x, y, z) of the site in that body's frame (m).
+        quat: (w, x, y, z) orientation of the site in that body's frame; its axes are the TCP frame's.
+    """
+
+    body: str
+    pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not self.body:
+            raise ConfigError("gripper.define_tcp.body is empty; name the body the TCP site is fixed to")
+        if np.linalg.norm(self.quat) < 1e-9:
+            raise ConfigError("gripper.define_tcp.quat has zero length; identity is [1, 0, 0, 0]")
 
 
 @dataclass(frozen=True)
@@ -219,7 +254,9 @@ class GripperConfig:
     Attributes:
         joints: finger joint names (state read-out; an unnamed actuator is found from them).
         pad_geoms: the pad collision geoms, ``[[left pads...], [right pads...]]`` (any number per finger), or
-            ``[left, right]`` for one pad per finger. Contacts with them count as grasp contacts.
+            ``[left, right]`` for one pad per finger. Contacts with them count as grasp contacts. An entry is a
+            geom name, ``body:NAME`` (every collision geom of body NAME, for unnamed geoms) or ``body:NAME#K``
+            (the K-th geom of body NAME, 0-based, in file order).
         command_range: ``[open command, closed command]``; either order (e.g. ``[255, 0]`` when 255 = open).
         command_to_width: pairs ``[command, gap between the pads (m)]`` measured in simulation with nothing
             between the pads; commands strictly increasing, the gap shrinking towards the closed command.
@@ -236,7 +273,9 @@ class GripperConfig:
             empty = the pads stay centred on the TCP at every width (a slide gripper).
         force: pad force (N) the MJCF's own actuator force limit gives (as authored; informational).
         force_map: measured pad force per actuator setting and width (``measure_gripper --force``); None = the
-            actuator force limit is taken as the pad force (true only for a direct slide/tendon drive).
+            actuator force limit is taken as the pad force, allowed only for a direct drive (the actuator moves
+            slide joints, directly or through a tendon); a linkage (hinge) gripper without one is refused.
+        define_tcp: a TCP site to add (named ``arm.tcp_site``) when the gripper file has none.
     """
 
     joints: tuple[str, ...]
@@ -252,6 +291,7 @@ class GripperConfig:
     tcp_offset: tuple[tuple[float, float], ...] = ()
     force: float | None = None
     force_map: ForceMap | None = None
+    define_tcp: TcpSiteDeclaration | None = None
 
     def __post_init__(self) -> None:
         pads = self.pad_geoms
@@ -341,6 +381,9 @@ class RobotConfig:
         scene: an optional standalone scene MJCF (floor, light) for viewing the robot; the harness never needs it.
         base_pose: where the arm base sits in the world (default: the world origin).
         gravcomp: True = gravity compensation on every robot body, False = none, None = as the MJCF says.
+        reach_min_share: the simulated backend refuses the robot when it reaches less than this share of the
+            workspace box with the gripper pointing down (:mod:`sim.robot_reach`); lower it for an arm meant to
+            cover part of the box.
     """
 
     name: str
@@ -350,8 +393,11 @@ class RobotConfig:
     scene: Path | None = None
     base_pose: BasePose = field(default_factory=BasePose)
     gravcomp: bool | None = None
+    reach_min_share: float = 0.75
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.reach_min_share <= 1.0:
+            raise ConfigError(f"robot {self.name!r}: reach_min_share must be in [0, 1], got {self.reach_min_share}")
         separate = (self.arm.mjcf is not None, self.gripper.mjcf is not None)
         if self.mjcf is not None and any(separate):
             raise ConfigError(f"robot {self.name!r}: give either a pre-combined mjcf or arm.mjcf + gripper.mjcf, "
@@ -407,12 +453,19 @@ class RobotConfig:
 
         return problems_in(model, self)
 
-    def validate_against(self, model: mujoco.MjModel) -> None:
-        """Raise SceneError listing every joint/actuator/site/geom this config names that ``model`` lacks."""
+    def validate_against(self, model: mujoco.MjModel, require_force_map: bool = True) -> None:
+        """Raise SceneError listing every joint/actuator/site/geom this config names that ``model`` lacks, or (with
+        ``require_force_map``) when a linkage gripper has no ``gripper.force_map``."""
         problems = self.missing_in(model)
         if problems:
             raise SceneError(f"robot {self.name!r} does not match the compiled model: missing or inconsistent "
                              f"{', '.join(problems)}; fix the names in its robot.yaml or the MJCF")
+        if require_force_map:
+            from sim.robot_ids import force_map_problem
+
+            why = force_map_problem(model, self, self.resolve(model))
+            if why:
+                raise SceneError(why)
 
 
 def available_robots() -> list[str]:
@@ -448,12 +501,13 @@ def _resolve_paths(data: dict, folder: Path) -> None:
 
 
 def load_robot_config(name_or_path: str | Path, overrides: tuple[str, ...] | list[str] = (),
-                      validate: bool = True) -> RobotConfig:
+                      validate: bool = True, require_force_map: bool = True) -> RobotConfig:
     """Load a :class:`RobotConfig` by robot folder name (e.g. ``"inovo_2f85"``) or YAML path.
 
     Unknown keys and missing fields raise ConfigError naming them; ``overrides`` are ``a.b=c`` strings.
     With ``validate`` the robot is composed and compiled and :meth:`RobotConfig.validate_against` is applied
-    (SceneError).
+    (SceneError; ``require_force_map=False`` lets a linkage gripper without a force map load, for measuring one).
+    Without ``arm.home`` the home pose is solved (:func:`solve_home`).
     """
     path = robot_yaml_path(name_or_path)
     data = load_yaml(path)
@@ -463,7 +517,54 @@ def load_robot_config(name_or_path: str | Path, overrides: tuple[str, ...] | lis
     for key, f in files.items():
         if f is not None and not f.is_file():
             raise ConfigError(f"{path}: {key} file {f} does not exist; paths are relative to the YAML")
-    if validate:
-        cfg.validate_against(cfg.robot_model())
+    if validate or cfg.arm.home is None:
+        model = cfg.robot_model()
+        cfg.validate_against(model, require_force_map)
+        if cfg.arm.home is None:
+            from dataclasses import replace
+
+            home = solve_home(cfg, model)
+            log.warning("robot %s: arm.home is not set; solved it (TCP above the workspace box, pointing down): "
+                        "home: %s (put it in %s to keep it)", cfg.name, [round(float(v), 4) for v in home],
+                        path)
+            cfg = replace(cfg, arm=replace(cfg.arm, home=tuple(float(v) for v in home)))
     log.debug("loaded robot config %s from %s", cfg.name, path)
     return cfg
+
+
+def solve_home(rcfg: RobotConfig, model: mujoco.MjModel | None = None,
+               heights_m: tuple[float, ...] = (0.30, 0.20, 0.12)) -> np.ndarray:
+    """A home pose for a robot without ``arm.home``: the TCP above the reconstruction box
+    (:data:`sim.world.WORKSPACE_BOUNDS`) pointing down, closing axis along world y, solved with execution's IK
+    (:meth:`torm.execution.ik.IKSolver.solve_free`) from the middle of the joint limits. Tried in order: above the
+    box centre, then halfway to the box point nearest the base, each at ``heights_m`` (m above the table); the
+    first reachable one wins (a small arm gets a lower, nearer home).
+
+    Returns:
+        (n,) joint angles (rad). Raises SceneError when none is reachable (the base cannot reach the box).
+    """
+    from sim.robot_reach import _down_rotation
+    from sim.world import WORKSPACE_BOUNDS
+    from torm.execution.ik import IKSolver
+
+    model = model if model is not None else rcfg.robot_model()
+    ik = IKSolver(model, tuple(rcfg.arm.joints), rcfg.arm.tcp_site)
+    g = rcfg.gripper.geometry
+    lo, hi = WORKSPACE_BOUNDS[0][:2], WORKSPACE_BOUNDS[1][:2]
+    centre = 0.5 * (lo + hi)
+    near = np.clip(np.asarray(rcfg.base_pose.position[:2], float), lo, hi)
+    mid = 0.5 * (rcfg.arm.lower + rcfg.arm.upper)
+    T = np.eye(4)
+    T[:3, :3] = _down_rotation(g.approach_axis, g.closing_axis, np.array([0.0, 1.0, 0.0]))
+    best = None
+    for xy in (centre, 0.5 * (centre + near)):
+        for h in heights_m:
+            T[:3, 3] = [xy[0], xy[1], h]
+            res = ik.solve_free(T, mid, restarts=16)
+            if res.converged:
+                return res.q
+            best = res if best is None or res.pos_err < best.pos_err else best
+    raise SceneError(f"robot {rcfg.name!r}: arm.home is not set and no joint pose puts the TCP above the workspace "
+                     f"box {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} pointing down at heights "
+                     f"{list(heights_m)} m (best residual {best.pos_err * 1000:.0f} mm); set arm.home in the YAML or "
+                     "move base_pose closer to the box")

@@ -44,6 +44,57 @@ def _gripper_actuator_candidates(model: mujoco.MjModel, joint_ids: set[int]) -> 
     return out
 
 
+def direct_drive(model: mujoco.MjModel, actuator: int) -> bool:
+    """Whether the gripper ``actuator`` moves only slide joints (directly or through a tendon), so its force limit
+    is the pad force; a hinge (a linkage) multiplies it by a width-dependent lever arm."""
+    trn, tid = int(model.actuator_trntype[actuator]), int(model.actuator_trnid[actuator, 0])
+    if trn in _JOINT_TRN:
+        joints = {tid}
+    elif trn == int(mujoco.mjtTrn.mjTRN_TENDON):
+        joints = _tendon_joints(model, tid)
+    else:
+        return False
+    return bool(joints) and all(int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE) for j in joints)
+
+
+def _body_geoms(model: mujoco.MjModel, bid: int) -> list[int]:
+    return [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) == bid]
+
+
+def _collides(model: mujoco.MjModel, g: int) -> bool:
+    return bool(model.geom_contype[g] or model.geom_conaffinity[g])
+
+
+def pad_candidates(model: mujoco.MjModel, prefix: str) -> list[str]:
+    """Spellings of the collision geoms of the gripper's bodies (names starting with ``prefix``) for
+    ``gripper.pad_geoms``: the geom name when it has one, else ``body:BODY#K``."""
+    out = []
+    for b in range(model.nbody):
+        name = model.body(b).name
+        if not name.startswith(prefix):
+            continue
+        for k, g in enumerate(_body_geoms(model, b)):
+            if _collides(model, g):
+                out.append(model.geom(g).name or f"body:{name}#{k}")
+    return out
+
+
+def resolve_pad(model: mujoco.MjModel, entry: str) -> list[int]:
+    """Geom ids of one ``gripper.pad_geoms`` entry: a geom name, ``body:NAME`` (the body's collision geoms) or
+    ``body:NAME#K`` (its K-th geom, 0-based); [] when it names nothing."""
+    if not entry.startswith("body:"):
+        g = int(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, entry))
+        return [g] if g >= 0 else []
+    body, _, k = entry[len("body:"):].partition("#")
+    bid = int(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body))
+    if bid < 0:
+        return []
+    geoms = _body_geoms(model, bid)
+    if k:
+        return [geoms[int(k)]] if k.isdigit() and int(k) < len(geoms) else []
+    return [g for g in geoms if _collides(model, g)]
+
+
 def _label(model: mujoco.MjModel, a: int) -> str:
     return repr(model.actuator(a).name) if model.actuator(a).name else f"#{a} (unnamed)"
 
@@ -95,6 +146,17 @@ def problems_in(model: mujoco.MjModel, rcfg: RobotConfig) -> list[str]:
     return _resolve(model, rcfg)[1]
 
 
+def force_map_problem(model: mujoco.MjModel, rcfg: RobotConfig, ids: RobotIds) -> str | None:
+    """Why ``rcfg`` needs a ``gripper.force_map`` it lacks (its actuator is not a direct drive), or None."""
+    a = ids.gripper_actuator
+    if rcfg.gripper.force_map is not None or a < 0 or direct_drive(model, a):
+        return None
+    return (f"robot {rcfg.name!r}: gripper actuator {_label(model, a)} drives a hinge (a linkage), so its force limit "
+            "is not the pad force and a grip would be recorded with the wrong force; measure a force map with "
+            f"python -m sim.robots.measure_gripper {rcfg.name} --force (the robot's folder name or the path of its "
+            "YAML) and paste it into gripper.force_map")
+
+
 def _resolve(model: mujoco.MjModel, rcfg: RobotConfig) -> tuple[RobotIds | None, list[str]]:
     arm, grip = rcfg.arm, rcfg.gripper
     pre = grip.prefix
@@ -115,8 +177,23 @@ def _resolve(model: mujoco.MjModel, rcfg: RobotConfig) -> tuple[RobotIds | None,
     grip_j = [need(J, "joint", j, pre) for j in grip.joints]
     tcp = need(S, "site", arm.tcp_site, pre)
     flange = need(S, "site", arm.flange_site)
-    left = [need(G, "geom", g, pre) for g in grip.left_pads]
-    right = [need(G, "geom", g, pre) for g in grip.right_pads]
+    def pads(entries: tuple[str, ...]) -> list[int]:
+        out: list[int] = []
+        for e in entries:
+            found = resolve_pad(model, e)
+            if not found:
+                hint = ""
+                if not e.startswith("body:") and mujoco.mj_name2id(model, G, pre + e) >= 0:
+                    hint = f" (the composed model calls it {pre + e!r}: gripper names carry gripper.prefix)"
+                problems.append(f"pad geom {e!r}{hint} (candidates: {', '.join(pad_candidates(model, pre)) or 'none'}; "
+                                "an unnamed geom is named body:BODY or body:BODY#K)")
+            out += found
+        return out
+
+    left = pads(grip.left_pads)
+    right = pads(grip.right_pads)
+    if set(left) & set(right):
+        problems.append(f"pad geoms {sorted(set(left) & set(right))} are listed for both fingers")
     arm_a: list[int] = []
     for j, jid, a in zip(arm.joints, arm_j, arm.actuator_names, strict=True):
         if a:
@@ -143,9 +220,9 @@ def _resolve(model: mujoco.MjModel, rcfg: RobotConfig) -> tuple[RobotIds | None,
     else:
         g_act = -1
     for j, jid, (lo, hi) in zip(arm.joints, arm_j, arm.position_limits, strict=True):
-        if jid >= 0 and model.jnt_limited[jid]:
-            mlo, mhi = model.jnt_range[jid]
-            if lo < mlo - 1e-9 or hi > mhi + 1e-9:
+        if jid >= 0 and model.jnt_limited[jid]:  # the composed model carries the YAML's limits: a model from
+            mlo, mhi = model.jnt_range[jid]      # elsewhere may not
+            if lo < mlo - 1e-6 or hi > mhi + 1e-6:
                 problems.append(f"joint {j!r} limits [{lo}, {hi}] exceed the MJCF range [{mlo}, {mhi}] (rad)")
     if problems:
         return None, problems

@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+#: Random restarts per point after the seeded solves failed (execution's solve_free; fewer than execution's
+#: RESTARTS because an arm out of reach pays them at every unreachable point of the grid).
+REACH_RESTARTS = 4
 #: TCP heights above the table checked (m): a grasp on a ~10 cm object, and the same lifted by the pick's 25 cm.
 DEFAULT_HEIGHTS = (0.05, 0.30)
 _AXES = "xyz"
@@ -64,11 +67,22 @@ class ReachReport:
         return s + ")"
 
     def advice(self, where: str = "its robot.yaml") -> str:
+        """What to change, from where the base stands: inside the box (move it out past an edge), near it (the
+        arm is too short: closer), or far (closer)."""
         lo, hi = np.asarray(self.bounds)
         centre = 0.5 * (lo + hi)
-        d = float(np.linalg.norm((centre - np.asarray(self.base_position))[:2]))
-        return (f"move the arm base with `base_pose` in {where} (now position {list(self.base_position)}, "
-                f"{d:.2f} m from the box centre {np.round(centre[:2], 3).tolist()}), e.g. closer to the box")
+        base = np.asarray(self.base_position)
+        d = float(np.linalg.norm((centre - base)[:2]))
+        now = (f"move the arm base with `base_pose` in {where} (now position {list(self.base_position)}, "
+               f"{d:.2f} m from the box centre {np.round(centre[:2], 3).tolist()})")
+        if np.all(base[:2] >= lo[:2]) and np.all(base[:2] <= hi[:2]):
+            return (f"{now}: the base stands inside the workspace box, where a downward-pointing gripper cannot "
+                    "reach the points around it; put it outside one edge of the box, facing it, or lower "
+                    "`reach_min_share` if the arm is meant to cover only part of the box")
+        missed = self.points_nx3[~self.reached]
+        far = float(np.mean(np.linalg.norm((missed - base)[:, :2], axis=1))) if len(missed) else 0.0
+        return (f"{now}: the missed points lie {far:.2f} m from the base on average; move it closer to the box, or "
+                "lower `reach_min_share` in the robot YAML if the arm is meant to cover only part of the box")
 
 
 def _down_rotation(approach_axis: str, closing_axis: str, closing_world: np.ndarray) -> np.ndarray:
@@ -114,12 +128,14 @@ def _cached(rcfg: RobotConfig, bounds: tuple, table_height: float, heights: tupl
     for i, p in enumerate(pts):
         if np.linalg.norm(p - origin) > reach + 1e-3:
             continue
-        # from home in either closing direction, then from the last reached point's joints (a neighbour)
-        tries = [(home, R) for R in rots] + ([(last_ok, rots[0])] if last_ok is not home else [])
-        for seed, R in tries:
+        # execution's free-move solve (IKSolver.solve_free): from home in either closing direction, then from the
+        # last reached point's joints (a neighbour), and last with execution's random restarts
+        tries = [(home, R, 0) for R in rots] + ([(last_ok, rots[0], 0)] if last_ok is not home else [])
+        tries += [(home, rots[0], REACH_RESTARTS)]
+        for seed, R, restarts in tries:
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R, p
-            res = ik.solve(T, seed, home)
+            res = ik.solve_free(T, seed, restarts=restarts, seed=i)
             if res.converged:
                 reached[i], last_ok = True, res.q
                 break

@@ -53,8 +53,9 @@ def test_composition_keeps_units_options_integrator_and_hides_the_robot(cfg, bac
     w = backend.world
     m = w.model
     ids = w.robot_ids
-    # degrees in the files, radians in the model: the world did not force compiler.degree off
-    np.testing.assert_allclose(m.jnt_range[ids.arm_joints[1]], np.radians([-180, 180]))
+    # degrees in the files, radians in the model: the world did not force compiler.degree off; the arm joints carry
+    # the YAML's position_limits (one set of limits for IK, simulation and safety), converted from degrees right
+    np.testing.assert_allclose(m.jnt_range[ids.arm_joints[1]], cfg.arm.position_limits[1])
     np.testing.assert_allclose(m.jnt_range[ids.gripper_joints[0]], np.radians([-10, 40]))
     # the arm's own integrator, the gripper's contact options (attach alone drops them), multiccd on
     assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST

@@ -15,6 +15,9 @@ import numpy as np
 
 from torm.errors import ConfigError, ExecutionError
 
+#: Random restarts of :meth:`IKSolver.solve_free` after the seeded solve failed.
+RESTARTS = 8
+
 
 class UnreachableError(ExecutionError):
     """No joint configuration within the limits puts the TCP at the requested pose."""
@@ -111,6 +114,45 @@ class IKSolver:
         q_out = self.configuration.q[self._qadr].copy()
         ok = bool(np.isfinite(pos_err) and pos_err < cfg.pos_tol and rot_err < cfg.rot_tol)
         return IKResult(q_out, pos_err, rot_err, ok, it)
+
+    def joint_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower (n,), upper (n,)) rad of the solved joints: the model's ranges, which the robot composition sets
+        to the robot config's ``arm.position_limits`` (one set of limits for IK and the safety layer);
+        unlimited joints get [-pi, pi] for sampling."""
+        lo, hi = np.full(len(self.joint_names), -np.pi), np.full(len(self.joint_names), np.pi)
+        for k, j in enumerate(self.joint_names):
+            jid = self.model.joint(j).id
+            if self.model.jnt_limited[jid]:
+                lo[k], hi[k] = self.model.jnt_range[jid]
+        return lo, hi
+
+    def solve_free(self, T_world_tcp: np.ndarray, q_seed: np.ndarray, restarts: int = RESTARTS,
+                   seed: int = 0) -> IKResult:
+        """The solve of a free-move target used by execution and by the start-up reach check alike.
+
+        From ``q_seed`` (n,) rad with the posture task at ``q_seed``; a solve that stalls within 2 cm is polished
+        once with the posture at its own result; when that fails too, up to ``restarts`` further solves start from
+        joint configurations drawn uniformly within :meth:`joint_ranges` (a generator seeded with ``seed``, so the
+        result is deterministic). Returns the first converged result, else the one with the smallest residual.
+        """
+        res = self.solve(T_world_tcp, q_seed, q_posture=q_seed)
+        if not res.converged and res.pos_err < 0.02:
+            res = self.solve(T_world_tcp, res.q, q_posture=res.q)
+        if res.converged or restarts <= 0:
+            return res
+        best = res
+        lo, hi = self.joint_ranges()
+        rng = np.random.default_rng(seed)
+        for _ in range(restarts):
+            q0 = rng.uniform(lo, hi)
+            r = self.solve(T_world_tcp, q0, q_posture=q0)
+            if not r.converged and r.pos_err < 0.02:
+                r = self.solve(T_world_tcp, r.q, q_posture=r.q)
+            if r.converged:
+                return r
+            if r.pos_err < best.pos_err:
+                best = r
+        return best
 
     def solve_or_raise(self, T_world_tcp: np.ndarray, q_init: np.ndarray, what: str = "target") -> np.ndarray:
         """Like :meth:`solve` but raise :class:`UnreachableError` naming ``what`` and the residual."""

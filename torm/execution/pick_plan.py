@@ -233,11 +233,9 @@ def _check_box(poses: dict[str, np.ndarray], box: tuple[np.ndarray, np.ndarray] 
 
 
 def _solve(ik: IKSolver, T: np.ndarray, q_seed: np.ndarray, what: str) -> np.ndarray:
-    """IK for a free-move target. The posture task pulls towards ``q_seed``; far from it the pull can leave a
-    residual just above tolerance, so a stalled solve is polished once with the posture at its own result."""
-    res = ik.solve(T, q_seed, q_posture=q_seed)
-    if not res.converged and res.pos_err < 0.02:
-        res = ik.solve(T, res.q, q_posture=res.q)
+    """IK for a free-move target (:meth:`IKSolver.solve_free`: seeded, polished, then random restarts; the same
+    solve the start-up reach check uses, :mod:`sim.robot_reach`)."""
+    res = ik.solve_free(T, q_seed)
     if not res.converged:
         raise UnreachableError(f"{what} at {T[:3, 3].round(4).tolist()} m is unreachable: IK residual "
                                f"{res.pos_err * 1000:.1f} mm / {np.degrees(res.rot_err):.1f} deg")
