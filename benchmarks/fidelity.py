@@ -82,7 +82,7 @@ FAILURE_MODES: list[tuple[str, str, tuple[str, ...]]] = [
     ("phantom", "not named in the paper: an attempt at a reconstructed object that is not there (per attempt)",
      ("phantom_attempt",)),
     ("other", "not named in the paper: other outcomes",
-     ("not_released", "arm_tracking_error", "physics_error", "other", "timeout", "crashed", "error",
+     ("not_released", "arm_tracking_error", "physics_error", "safety_stop", "other", "timeout", "crashed", "error",
       "reconstruction_failed", "config_error", "out_of_memory")),
 ]
 #: The paper's failed TORM trials per failure kind, attributed by the scenarios the paper names as examples

@@ -33,7 +33,7 @@ from torm.types import Grasp, ObjectPointCloud
 log = logging.getLogger(__name__)
 
 #: Loop outcomes that mean no motion happened or the motion was cut by an error: the judge keeps them.
-_PASS_THROUGH = (Outcome.NO_GRASP, Outcome.UNREACHABLE, Outcome.PHYSICS, Outcome.OTHER)
+_PASS_THROUGH = (Outcome.NO_GRASP, Outcome.UNREACHABLE, Outcome.PHYSICS, Outcome.SAFETY_STOP, Outcome.OTHER)
 
 
 class PickJudge:

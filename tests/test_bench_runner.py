@@ -200,7 +200,8 @@ def test_changed_default_refuses_resume_with_a_diff(tmp_path, monkeypatch):
     run_benchmark(cfg, out, progress=False)
     man = read_manifest(out)
     assert man["identity"]["trial_config"]["pick"]["grip_force"] == 130.0
-    assert set(man["identity"]["code"]) == {"git", "files_sha256", "packages"} and "numpy" in man["identity"]["code"]["packages"]
+    code = man["identity"]["code"]
+    assert set(code) == {"git", "files_sha256", "packages"} and "numpy" in code["packages"]
     monkeypatch.setitem(bench_fake_resolved.DEFAULTS, "pick", {"grip_force": 40.0})
     with pytest.raises(BenchmarkError, match=r"trial_config\.pick\.grip_force: 130\.0 -> 40\.0"):
         run_benchmark(cfg, out, progress=False)

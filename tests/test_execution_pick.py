@@ -204,3 +204,15 @@ def test_without_ground_truth_an_empty_gripper_is_a_slip(backend, monkeypatch):
         max(width_m, g.width()), speed_mps, force_n))  # never closes
     res = execute_pick(_RealLike(backend), [_cylinder_grasp(backend)], _direction(backend))
     assert res.outcome is Outcome.SLIPPED and "lift" in res.message
+
+
+def test_a_motion_the_safety_layer_refuses_is_a_safety_stop(backend, monkeypatch):
+    """A SafetyError (joint, speed or box limit: nothing was sent) is its own outcome, not ``other``."""
+    from torm.backend import SafetyError
+
+    def refuse(*args, **kwargs):
+        raise SafetyError("joint 'j2' target 3.2 rad outside [-3.1, 3.1]")
+
+    monkeypatch.setattr(backend.arm, "follow_trajectory", refuse)
+    res = judged_pick(backend, [_cylinder_grasp(backend)], _direction(backend))
+    assert res.outcome is Outcome.SAFETY_STOP and "SafetyError" in res.message, res.as_dict()

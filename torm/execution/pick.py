@@ -285,7 +285,8 @@ def execute_pick(backend: Backend, grasp_candidates: Sequence[Grasp], translate_
         res.outcome, res.message = Outcome.PHYSICS, str(exc)
         log.warning("pick aborted: %s", exc)
     except (SafetyError, ExecutionError) as exc:
-        res.outcome, res.message = Outcome.OTHER, f"{type(exc).__name__}: {exc}"
+        res.outcome = Outcome.SAFETY_STOP if isinstance(exc, SafetyError) else Outcome.OTHER
+        res.message = f"{type(exc).__name__}: {exc}"
         log.warning("pick aborted: %s", exc)
         backend.arm.stop()
     finally:

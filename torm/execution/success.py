@@ -36,6 +36,7 @@ class Outcome(str, Enum):
     PHYSICS = "physics_error"  # NaN / exploding contacts: the trial aborts
     TRACKING = "arm_tracking_error"  # the object stayed in the hand but the arm fell short of the commanded motion
     PHANTOM = "phantom_attempt"  # an attempt at a reconstructed object that is not there (the judge's verdict)
+    SAFETY_STOP = "safety_stop"  # the safety layer refused a motion (joint, speed or workspace limit): nothing sent
     OTHER = "other"
 
 
