@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from torm.reconstruction.band_march import BandMarchWork, band_march, interpolate_surface, surface_points
+from torm.reconstruction.crossing_band import build_band, build_band_reference
 from torm.reconstruction.marching_tets import NUM_TRI_16, marching_tets
-from torm.reconstruction.narrow_band import build_band, build_band_reference
 from torm.reconstruction.tetgrid import build_tet_grid
 
 BOUNDS = [[-0.1, -0.08, 0.0], [0.1, 0.08, 0.12]]

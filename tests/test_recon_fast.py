@@ -10,10 +10,10 @@ from test_recon_visual_hull import BOX, CENTRE, RADIUS, _cameras, _sphere_masks
 
 from torm.metrics import chamfer_distance_mm
 from torm.reconstruction import ReconstructionConfig, reconstruct
+from torm.reconstruction.adaptive_grid import build_band, narrow_band_hull
 from torm.reconstruction.bounds import auto_bounds, cone_box
 from torm.reconstruction.carve import carve_visual_hull, voxel_grid_shape
 from torm.reconstruction.marching_tets import marching_tets
-from torm.reconstruction.narrowband import build_band, narrow_band_hull
 from torm.reconstruction.raster import render_mask, render_mask_fast
 from torm.reconstruction.tetgrid import build_tet_grid
 from torm.reconstruction.visual_hull import ProjectiveSDF, visual_hull_sdf, vote_index

@@ -13,9 +13,9 @@ from test_recon_dmtet import BOUNDS, _capture  # tests/ is on sys.path under pyt
 from torm.errors import ConfigError, ReconstructionError
 from torm.reconstruction import losses
 from torm.reconstruction.api import ReconstructionConfig, reconstruct
+from torm.reconstruction.crossing_band import build_band
 from torm.reconstruction.dmtet import DMTetConfig, _Clock, _Field, _Surface, downsample_masks, optimise_dmtet
 from torm.reconstruction.marching_tets import marching_tets
-from torm.reconstruction.narrow_band import build_band
 from torm.reconstruction.raster import face_adjacency, render_silhouettes
 from torm.reconstruction.tetgrid import build_tet_grid
 

@@ -5,6 +5,7 @@ configured by :class:`ReconstructionConfig` (``mode="fast"``: TORM-fast, consens
 ``"paper"``: TORM-paper, DMTet-Multi; ``"carve"``: the voxel-carve baseline); :func:`mode_label` names what runs.
 """
 
+from torm.reconstruction.adaptive_grid import narrow_band_hull
 from torm.reconstruction.api import ReconstructionConfig, mode_label, reconstruct
 from torm.reconstruction.bounds import auto_bounds
 from torm.reconstruction.carve import carve_visual_hull
@@ -18,7 +19,6 @@ from torm.reconstruction.losses import (
     robust_view_weights,
 )
 from torm.reconstruction.marching_tets import marching_tets
-from torm.reconstruction.narrowband import narrow_band_hull
 from torm.reconstruction.raster import (
     SparseSilhouettes,
     render_depth,

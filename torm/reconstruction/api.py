@@ -8,7 +8,7 @@ Modes (:func:`mode_label` gives the name every table and record uses):
      object away; its connected components are the objects;
   2. *mask repair* (:func:`torm.reconstruction.objects.repair_masks`): a view whose silhouette misses
      most of a consensus object gets that object's footprint, so it carves everything else but not it;
-  3. *narrow band* (:mod:`torm.reconstruction.narrowband`): the strict (``fine_vote_views``) projective
+  3. *narrow band* (:mod:`torm.reconstruction.adaptive_grid`): the strict (``fine_vote_views``) projective
      hull of the repaired silhouettes, evaluated coarse-to-fine only near its surface, from ``band_base_res``
      cells over ``band_levels`` 2x refinements, then marching tets. The projective SDF places the surface
      with sub-cell accuracy; with a one-pixel-scale finest cell it beats a voxel carve at equal time
@@ -82,10 +82,10 @@ from scipy import ndimage
 from torm.errors import CaptureError, ConfigError, ReconstructionError
 from torm.mesh import sample_objects
 from torm.mesh.split import signed_volume, split_components
+from torm.reconstruction.adaptive_grid import narrow_band_hull
 from torm.reconstruction.bounds import BOUNDS_HINT, auto_bounds
 from torm.reconstruction.carve import carve_visual_hull
 from torm.reconstruction.dmtet import DMTetConfig, downsample_masks, optimise_dmtet, silhouette_iou
-from torm.reconstruction.narrowband import narrow_band_hull
 from torm.reconstruction.objects import check_objects, consensus_objects, repair_masks, unexplained_views
 from torm.reconstruction.raster import render_mask_fast
 from torm.reconstruction.tetgrid import build_tet_grid, cells_per_axis

@@ -1,6 +1,6 @@
 """Marching tets on a narrow band in one compiled pass: the mesh topology without torch bookkeeping.
 
-Paper mode extracts the mesh of its narrow band (:mod:`torm.reconstruction.narrow_band`) every step. The
+Paper mode extracts the mesh of its narrow band (:mod:`torm.reconstruction.crossing_band`) every step. The
 topology (which tets cross zero, which edges carry a surface vertex, the triangles) depends only on the signs
 of the SDF, so it is found here in one numba pass over the band tets; only the surface-vertex interpolation,
 through which gradients flow, stays in torch (:func:`interpolate_surface`). The result is the mesh that

@@ -8,7 +8,7 @@ eq. 2 with the alpha schedule of eq. 3, or robust per-view weighted) summed over
 the eikonal term (eq. 4), i.e. eq. (5) -> Adam with a decaying learning rate.
 
 With the MLP the field is evaluated only in a narrow band of tets around the current surface
-(:mod:`torm.reconstruction.narrow_band`), re-evaluated on the whole grid every ``full_pass_every`` steps and
+(:mod:`torm.reconstruction.crossing_band`), re-evaluated on the whole grid every ``full_pass_every`` steps and
 whenever the band's boundary changes sign; the mesh and all gradients are those of the full evaluation
 (``narrow_band=False`` runs the full evaluation every step, the reference path). An empty mesh is reported as
 empty: the run stops there (no gradient can reach the field any more), ``history["collapsed_at"]`` holds the
@@ -41,9 +41,9 @@ from torch import nn
 from torm.errors import ConfigError
 from torm.reconstruction import losses
 from torm.reconstruction.band_march import BandMarchWork, band_march, surface_points
+from torm.reconstruction.crossing_band import Band, build_band
 from torm.reconstruction.marching_tets import marching_tets
 from torm.reconstruction.mlp import SDFDeformMLP
-from torm.reconstruction.narrow_band import Band, build_band
 from torm.reconstruction.raster import SilhouetteBatch, face_adjacency, render_mask
 from torm.reconstruction.tetgrid import TetGrid
 from torm.runtime import default_threads

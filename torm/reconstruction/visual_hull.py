@@ -149,7 +149,7 @@ class ProjectiveSDF:
 
     Construction computes one signed 2-D distance transform per view, over the pixel window the region
     of interest projects into, and keeps them; :meth:`__call__` then costs one compiled projection loop
-    per view over the points. This lets a coarse-to-fine evaluation (:mod:`torm.reconstruction.narrowband`)
+    per view over the points. This lets a coarse-to-fine evaluation (:mod:`torm.reconstruction.adaptive_grid`)
     query the same field many times.
 
     Args:

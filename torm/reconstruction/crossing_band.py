@@ -1,4 +1,4 @@
-"""Narrow band of a tet grid around the current surface, for evaluating the SDF field only where it matters.
+"""The band of crossing tets around the current DMTet surface, for evaluating the SDF field only where it matters.
 
 DMTet's mesh, and hence every mask and eikonal gradient, depends only on the SDF values and deformations of
 the vertices of *crossing* tets (tets with vertices on both sides of zero). Everything else is evaluated and

@@ -1,4 +1,4 @@
-"""Narrow-band tet grid: a signed field evaluated coarse-to-fine only near its zero level set.
+"""Adaptive (coarse-to-fine) tet grid: a signed field evaluated only near its zero level set (the narrow-band hull).
 
 Level 0 is the whole Kuhn lattice over the box (``base_res`` cells along the longest axis, see
 :func:`torm.reconstruction.tetgrid.cells_per_axis`); the field is evaluated at all its vertices. Each
