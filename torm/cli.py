@@ -16,7 +16,7 @@ import logging
 import pkgutil
 import sys
 
-from torm.errors import TormError
+from torm.errors import ConfigError, TormError
 
 log = logging.getLogger("torm")
 
@@ -40,7 +40,62 @@ def build_parser() -> argparse.ArgumentParser:
         module.register(sub)
     for child in sub.choices.values():
         _add_logging_flags(child)
+        _add_options_config(child)
     return parser
+
+
+def _leaves(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """The parsers that run something (they set ``func``), nested sub-commands included."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        return [parser]
+    return [leaf for a in subs for child in a.choices.values() for leaf in _leaves(child)]
+
+
+def _add_options_config(parser: argparse.ArgumentParser) -> None:
+    """Give every command ``--config`` and ``--set``: where a command has no config of its own, ``--config
+    FILE.yaml`` holds its options (keys: the long option names) and ``--set OPTION=VALUE`` sets one; the options
+    given on the command line win (:func:`apply_options_config`)."""
+    for leaf in _leaves(parser):
+        opts = {o for a in leaf._actions for o in a.option_strings}
+        if "--config" not in opts:
+            leaf.add_argument("--config", dest="options_config", default=None, metavar="FILE.yaml",
+                              help="YAML of this command's options (keys: the long option names, e.g. out: "
+                                   "report/); options given on the command line win")
+        if "--set" not in opts:
+            leaf.add_argument("--set", dest="options_set", action="append", default=[], metavar="OPTION=VALUE",
+                              help="set one of this command's options, e.g. --set out=report/ (repeatable)")
+        leaf.set_defaults(_options_parser=leaf)
+
+
+def apply_options_config(parser: argparse.ArgumentParser, argv: list[str] | None,
+                         args: argparse.Namespace) -> argparse.Namespace:
+    """Re-parse ``argv`` with the command's options from ``--config FILE.yaml`` / ``--set OPTION=VALUE`` as
+    defaults (commands without a config of their own). ConfigError names an unknown key and the valid ones."""
+    from torm.config import load_yaml, parse_override
+
+    leaf = getattr(args, "_options_parser", None)
+    path, sets = getattr(args, "options_config", None), list(getattr(args, "options_set", None) or [])
+    if leaf is None or (not path and not sets):
+        return args
+    keys: dict[str, str] = {}
+    for a in leaf._actions:
+        if a.dest in ("help", "options_config", "options_set", "verbose", "quiet") or not a.option_strings:
+            continue
+        keys[a.dest] = a.dest
+        for o in a.option_strings:
+            if o.startswith("--"):
+                keys[o[2:]] = keys[o[2:].replace("-", "_")] = a.dest
+    data = dict(load_yaml(path)) if path else {}
+    for text in sets:
+        key_path, value = parse_override(text)
+        data[".".join(key_path)] = value
+    unknown = sorted(k for k in data if k not in keys)
+    if unknown:
+        valid = sorted({k for k in keys if "_" not in k or k == keys[k]})
+        raise ConfigError(f"{path or '--set'}: unknown option(s) {unknown}; valid: {', '.join(valid)}")
+    leaf.set_defaults(**{keys[k]: v for k, v in data.items()})
+    return parser.parse_args(argv)
 
 
 def _add_logging_flags(parser: argparse.ArgumentParser) -> None:
@@ -82,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     try:
+        args = apply_options_config(parser, argv, args)
         return int(args.func(args) or 0)
     except TormError as exc:  # printed once, here; library code raises without logging it
         print(f"torm: error: {exc}", file=sys.stderr)

@@ -1,9 +1,10 @@
 """``torm trial``: one closed-loop trial (capture -> silhouettes -> reconstruction -> grasps -> picks).
 
 Runs capture, silhouettes, reconstruction, grasp planning and a pick of every object, judged by the paper's
-25 cm lift / 20 cm translation test, and prints the result record as JSON on stdout: a ``summary`` first
-(scenario, method, k/n objects picked, outcome per object, total time), then what produced it
-(``context``), timings, perception metrics, per-object outcomes, and the resolved ``config`` last.
+25 cm lift / 20 cm translation test. On a terminal it prints a short summary (what ran, k/n picked, each
+object's outcome, the slowest stages); with ``--json``, or when stdout is a pipe or a file, it prints the full
+record as JSON: a ``summary`` first, then what produced it (``context``), timings, perception metrics,
+per-object outcomes, and the resolved ``config`` last. ``--out FILE`` always writes the JSON.
 Progress (each stage with its time) goes to stderr; ``torm -q trial ...`` silences it.
 
 Examples::
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import sys
 import threading
 from typing import Any
 
@@ -60,6 +62,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--re-perceive", action="store_true", help="capture and reconstruct again before every pick")
     add_record(p, "the trial (images, masks, meshes, grasps, motion, outcomes)")
     p.add_argument("--out", default=None, help="also write the JSON result to this file")
+    p.add_argument("--json", action="store_true",
+                   help="print the full JSON record on stdout (the default when stdout is not a terminal; on a "
+                        "terminal a short summary is printed)")
     add_overrides(p, example="reconstruction.grid_res=64", target="trial")
     p.set_defaults(func=run)
 
@@ -83,6 +88,29 @@ def trial_config_from_args(args: argparse.Namespace):
     return cfgmod.from_dict(TrialConfig, data, overrides + list(args.overrides), where=args.config or "TrialConfig")
 
 
+def format_summary(result: dict, out: str | None = None) -> str:
+    """A trial record as a few lines for a terminal: what ran, k/n picked, each object's outcome, phantom
+    attempts, the slowest stages, and where the full record is."""
+    summ = result.get("summary") or {}
+    ctx = result.get("context") or {}
+    lines = [f"trial {summ.get('scenario')} seed {summ.get('seed')} method {summ.get('method')}: "
+             f"{summ.get('success')} objects picked"
+             + (f", {summ.get('phantom_attempts')} phantom attempt(s)" if summ.get("phantom_attempts") else "")
+             + (f", failure {summ.get('failure')}" if summ.get("failure") else "")]
+    what = [f"{k} {ctx[k]}" for k in ("realism", "segmenter", "renderer", "depth_model", "table") if ctx.get(k)]
+    if what:
+        lines.append("  ran: " + ", ".join(what))
+    for name, outcome in (summ.get("outcomes") or {}).items():
+        lines.append(f"  {name:<28} {outcome}")
+    timings = {k: v for k, v in (result.get("timings") or {}).items() if k != "total" and isinstance(v, float)}
+    slow = sorted(timings.items(), key=lambda kv: -kv[1])[:3]
+    total = (result.get("timings") or {}).get("total")
+    if total is not None:
+        lines.append(f"  total {total:.1f} s (" + ", ".join(f"{k} {v:.1f} s" for k, v in slow) + ")")
+    lines.append(f"  full record: {out}" if out else "  full record: torm trial ... --json (or --out FILE)")
+    return "\n".join(lines)
+
+
 def _on_sigterm(signum: int, frame: Any) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the backend's stop path must not be cut short
     raise KeyboardInterrupt
@@ -103,7 +131,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
-    print_json(result)  # first: the result is on stdout even if writing the file fails
+    if args.json or not sys.stdout.isatty():
+        print_json(result)  # first: the result is on stdout even if writing the file fails
+    else:
+        sys.stdout.write(format_summary(result, args.out) + "\n")
     if out is not None:
         try:
             write_json_file(out, result, "--out")
