@@ -97,7 +97,11 @@ def run(spec: Any, overrides: tuple[str, ...] = (), record_path: str | None = No
     extra = np.random.default_rng(spec.seed + 1)  # phantoms from their own stream: the draws above stay as they were
     spurious = [{"label": 1000 + n + j, "matched_object": None, "outcome": "phantom_attempt"}
                 for j in range(int(spec.method == "torm" and extra.random() < 0.3))]
+    context = {"method": spec.method, "realism": str(opts.get("realism", "measured")), "renderer": "mujoco",
+               "segmenter": "gt" if spec.method == "torm" else None, "depth_model": "ideal", "table": "declared",
+               "backend": "sim"}
     return {"scenario": spec.scenario, "seed": spec.seed, "method": spec.method, "config": {"fake": opts},
+            "context": context,
             "spurious_objects": spurious, "n_phantom_attempts": len(spurious),
             "versions": {"fake": "1"}, "timings": timings, "perception": perception, "objects": objects,
             "failure": failure, "n_objects": n, "n_success": n_success, "success_rate": n_success / n if n else 0.0}

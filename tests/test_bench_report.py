@@ -112,7 +112,7 @@ def test_report_numbers_match_rows(run_dirs):
     found = sum(r["perception"]["n_objects_found"] for r in sel)
     assert rec[("rw4", "torm")][5] == f"{found}/{3 * len(sel)}"
     # timing means (fake timings are fixed: total 4.0 s for torm)
-    timing = {r[0]: r for r in _table(md, "Method")}
+    timing = {r[0]: r for r in _table(md, "Method | setup")}
     assert timing["torm"][1:8] == ["0.10", "0.20", "0.30", "1.00", "0.40", "2.00", "4.00"]
     # throughput from the manifest session timestamps
     sess = throughput(load_run(run_dirs / "a"))
@@ -161,3 +161,26 @@ def test_report_errors(tmp_path):
         write_report([tmp_path])
     with pytest.raises(BenchmarkError, match="two to compare"):
         write_report([tmp_path, tmp_path, tmp_path])
+
+
+def test_report_header_names_what_ran_and_a_comparison_warns_on_different_worlds(run_dirs, tmp_path):
+    import shutil
+
+    from torm.bench.report import grid_difference, what_ran
+
+    md = write_report([run_dirs / "a"], tmp_path / "one") and (tmp_path / "one" / "report.md").read_text()
+    header = _table(md, "Method | Realism")
+    assert ["torm", "measured", "–", "gt", "–", "mujoco", "ideal", "declared", "sim"] in header
+    assert re.search(r"run identity [0-9a-f]{16}", md) and "config hash" not in md
+    b = tmp_path / "b"
+    shutil.copytree(run_dirs / "b", b)
+    rows = [json.loads(x) for x in (b / "results.jsonl").read_text().splitlines()]
+    for r in rows:
+        r["context"]["realism"] = "ideal"
+    (b / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    a_run, b_run = load_run(run_dirs / "a"), load_run(b)
+    assert what_ran(b_run.rows)["torm"][0] == "ideal"
+    assert "torm: realism A measured, B ideal" in grid_difference(a_run, b_run)
+    write_report([run_dirs / "a", b], tmp_path / "cmp")
+    md = (tmp_path / "cmp" / "report.md").read_text()
+    assert "**Warning: the two runs differ in what they ran" in md and "realism A measured, B ideal" in md

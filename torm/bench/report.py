@@ -364,6 +364,49 @@ def throughput_table(run: Run) -> list[Block]:
             ("table", ["Session", "Started", "Ended", "Hours", "Trials", "Engine", "Trials/hour"], body)]
 
 
+#: Context keys of a trial record that say what produced it (:func:`torm.pipeline.trial_context`), as headers.
+WHAT_RAN = ("realism", "reconstruction_mode", "segmenter", "segmenter_model", "renderer", "depth_model", "table",
+            "backend")
+WHAT_RAN_LABELS = ("Realism", "Reconstruction", "Segmenter", "Segmenter model", "Renderer", "Depth model", "Table",
+                   "Backend")
+
+
+def what_ran(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """Per method, the distinct values of each :data:`WHAT_RAN` context key over the rows ("–" when absent,
+    several values joined with " / ": a mixed run shows as such)."""
+    out: dict[str, list[str]] = {}
+    for meth in sorted({str(r.get("method")) for r in rows}):
+        ctx = [r.get("context") or {} for r in rows if str(r.get("method")) == meth]
+        vals = []
+        for key in WHAT_RAN:
+            seen = sorted({str(c.get(key)) for c in ctx if c.get(key) is not None})
+            vals.append(" / ".join(seen) if seen else "–")
+        out[meth] = vals
+    return out
+
+
+def grid_difference(a: Run, b: Run) -> list[str]:
+    """How the grids of two runs differ (scenarios, methods, trials per scenario); empty when they match."""
+    diff = []
+    sa, sb = set(scenarios_of(a.rows)), set(scenarios_of(b.rows))
+    if sa != sb:
+        diff.append(f"scenarios only in A: {sorted(sa - sb, key=_natural) or 'none'}, only in B: "
+                    f"{sorted(sb - sa, key=_natural) or 'none'}")
+    ma, mb = set(methods_of(a.rows, a.manifest)), set(methods_of(b.rows, b.manifest))
+    if ma != mb:
+        diff.append(f"methods only in A: {sorted(ma - mb) or 'none'}, only in B: {sorted(mb - ma) or 'none'}")
+    ta = ((a.manifest or {}).get("config") or {}).get("trials")
+    tb = ((b.manifest or {}).get("config") or {}).get("trials")
+    if ta is not None and tb is not None and ta != tb:
+        diff.append(f"trials per scenario: A {ta}, B {tb}")
+    wa, wb = what_ran(a.rows), what_ran(b.rows)
+    for meth in sorted(set(wa) & set(wb)):
+        for label, x, y in zip(WHAT_RAN_LABELS, wa[meth], wb[meth], strict=True):
+            if x != y:
+                diff.append(f"{meth}: {label.lower()} A {x}, B {y}")
+    return diff
+
+
 def summary_blocks(run: Run) -> list[Block]:
     m = run.manifest or {}
     cfg = m.get("config", {})
@@ -376,10 +419,13 @@ def summary_blocks(run: Run) -> list[Block]:
                      f"{cfg.get('trials')} trial(s) per scenario, timeout {cfg.get('timeout_s')} s, "
                      f"overrides: {', '.join(f'`{o}`' for o in cfg.get('overrides', [])) or 'none'}, "
                      f"trial function `{cfg.get('trial_fn')}`.")
-    if git:
+    if git or m:
         lines.append(f"Git {git.get('commit') or 'unknown'}" + (" (dirty)" if git.get("dirty") else "")
-                     + f"; config hash {m.get('config_hash')}.")
+                     + f"; run identity {str(m.get('identity_hash') or 'unknown')[:16]}.")
     out: list[Block] = [("p", " ".join(lines))]
+    ran = what_ran(run.rows)
+    if ran:
+        out.append(("table", ["Method", *WHAT_RAN_LABELS], [[meth, *vals] for meth, vals in ran.items()]))
     if run.problems:
         out += [("h3", "Problems in the results file")] + [("p", p) for p in run.problems]
     return out
@@ -487,7 +533,12 @@ def comparison_blocks(a: Run, b: Run) -> list[Block]:
     for m in methods:
         ta, tb = timing_means(a.rows, m)["total"], timing_means(b.rows, m)["total"]
         perf.append([m, _fmt(ta), _fmt(tb)])
-    return [("h2", f"Comparison: A = {a.name}, B = {b.name}"),
+    differ = grid_difference(a, b)
+    if differ:
+        log.warning("comparing %s with %s: the runs differ: %s", a.name, b.name, "; ".join(differ))
+    warn = ([("p", "**Warning: the two runs differ in what they ran; a difference below may come from that, not "
+                   "from the code.** " + "; ".join(differ) + ".")] if differ else [])
+    return [("h2", f"Comparison: A = {a.name}, B = {b.name}"), *warn,
             ("p", "Trial and object success k/n (rate [Wilson 95 %]) per scenario and method; Δ = B - A in "
                   "percentage points [Newcombe 95 % interval]: an interval that contains 0 is no evidence of a "
                   "difference."),
