@@ -23,7 +23,8 @@ dies (SIGKILL, out of memory), the driver itself runs the stop prepared by the t
 hook (:func:`torm.bench.isolate.driver_stop`: a real arm is cancelled and disabled over a new connection,
 within :data:`torm.hardware.remote_stop.STOP_TIMEOUT_S` of noticing); a trial process that dies under a live
 Ray worker is stopped by that worker the same way. When the driver stops, each task first runs its trial's
-own stop path; once they ended (at most ``stop_grace_s`` + 5 s) the driver stops every trial's arm as well. A cluster
+own stop path (cancel, then disable, at once); ``stop_grace_s`` + 1 s after the cancel, when every trial process
+is gone, the driver stops every real arm that was in flight once more, as a backstop. A cluster
 address that does not answer within :data:`CONNECT_TIMEOUT_S` is refused with a message instead of Ray's
 retries.
 """
@@ -160,10 +161,17 @@ def ray_rows(specs: Sequence[TrialSpec], job: TrialJob, workers: int, address: s
         # or the grace ran out, it stops every trial's hardware itself (a second disable is harmless)
         for ref in in_flight:
             ray.cancel(ref, force=False)
+        t_cancel = time.monotonic()
         if in_flight:
             ray.wait(list(in_flight), num_returns=len(in_flight), timeout=job.stop_grace_s + 5.0)
-        for spec, _ in in_flight.values():
-            driver_stop(stops.pop(spec.key, None), spec.key)
+        pending = [(spec, stops.pop(spec.key, None)) for spec, _ in in_flight.values()]
+        if any(stop is not None for _, stop in pending):
+            # A cancelled ref can read as done while its worker still stops the trial, and a trial process is
+            # SIGKILLed stop_grace_s after the cancel at the latest: stop the arms from here only after that, so
+            # nothing a dying trial still sends can follow the driver's cancel and disable.
+            time.sleep(max(0.0, t_cancel + job.stop_grace_s + 1.0 - time.monotonic()))
+            for spec, stop in pending:
+                driver_stop(stop, spec.key)
         if started_here:
             ray.shutdown()
 
