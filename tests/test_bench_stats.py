@@ -50,3 +50,12 @@ def test_newcombe_difference_example():
 def test_format_rate():
     assert format_rate(8, 10).startswith("8/10 (80% [")
     assert format_rate(0, 0) == "–"
+
+
+def test_scipy_wilson_equals_the_closed_form_reference():
+    from torm.bench.stats import wilson_interval_reference
+
+    for n in (1, 2, 5, 10, 17, 43, 80, 1000):
+        for k in range(0, n + 1, max(1, n // 7)):
+            for z in (1.0, 1.959963984540054, 2.576):
+                assert wilson_interval(k, n, z) == pytest.approx(wilson_interval_reference(k, n, z), abs=1e-12)

@@ -137,3 +137,16 @@ def test_cli_hand_eye_from_rendered_images(tmp_path):
     data = yaml.safe_load(out.read_text())
     assert data["n_images"] == 10 and data["method"] == "PARK"
     assert data["residuals"]["translation_mm_mean"] < 3.0
+
+
+@pytest.mark.parametrize("method", ["TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS"])
+def test_opencv_and_the_numpy_cross_check_agree(method):
+    from torm.hardware.handeye import solve_hand_eye_cv2
+    from torm.hardware.handeye_solvers import solve_ax_xb
+
+    A, B = _pairs(np.random.default_rng(3), 12, noise_m=0.0005, noise_deg=0.1)
+    T_cv = solve_hand_eye_cv2(A, B, method)
+    assert T_cv is not None  # OpenCV 5.1 has calibrateHandEye
+    T_np = solve_ax_xb(A, B, method)
+    assert np.linalg.norm(T_cv[:3, 3] - T_np[:3, 3]) < 2e-3 and _rot_deg(T_cv, T_np) < 0.2
+    assert np.linalg.norm(T_cv[:3, 3] - T_FLANGE_CAM[:3, 3]) < 5e-3 and _rot_deg(T_cv, T_FLANGE_CAM) < 0.5

@@ -1,7 +1,7 @@
 """Binomial confidence intervals for success rates (k successes out of n trials).
 
-- :func:`wilson_interval`: Wilson score interval (Wilson 1927), the standard choice for small n and
-  rates near 0 or 1 (it never leaves [0, 1] and is not degenerate at k = 0 or k = n).
+- :func:`wilson_interval`: Wilson score interval (Wilson 1927, computed by scipy), the standard choice for
+  small n and rates near 0 or 1 (it never leaves [0, 1] and is not degenerate at k = 0 or k = n).
 - :func:`difference_interval`: Newcombe's hybrid score interval for the difference of two independent
   proportions (Newcombe 1998, method 10), built from the two Wilson intervals.
 
@@ -24,6 +24,9 @@ def _check(k: int, n: int) -> None:
 def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     """Wilson score interval (low, high) for the rate k / n; (0.0, 1.0) when n = 0 (nothing known).
 
+    Computed by scipy (``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")``);
+    :func:`wilson_interval_reference` is the closed form it is tested against.
+
     Args:
         k: successes (0 <= k <= n).
         n: trials.
@@ -32,12 +35,22 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     _check(k, n)
     if n == 0:
         return 0.0, 1.0
+    from scipy.stats import binomtest, norm
+
+    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=float(2 * norm.cdf(z) - 1), method="wilson")
+    return (0.0 if k == 0 else float(ci.low)), (1.0 if k == n else float(ci.high))
+
+
+def wilson_interval_reference(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """The closed form of :func:`wilson_interval` (Wilson 1927), kept as the slow reference path of the tests."""
+    _check(k, n)
+    if n == 0:
+        return 0.0, 1.0
     p = k / n
     denom = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / denom
     lo, hi = max(0.0, centre - half), min(1.0, centre + half)
-    # Exact ends at k = 0 / k = n (rounding can leave 1e-17 above 0).
     return (0.0 if k == 0 else lo), (1.0 if k == n else hi)
 
 
@@ -70,4 +83,4 @@ def format_rate(k: int, n: int, z: float = Z95) -> str:
     return f"{k}/{n} ({100.0 * k / n:.0f}% [{100.0 * lo:.0f}-{100.0 * hi:.0f}%])"
 
 
-__all__ = ["Z95", "difference_interval", "format_rate", "wilson_interval"]
+__all__ = ["Z95", "difference_interval", "format_rate", "wilson_interval", "wilson_interval_reference"]

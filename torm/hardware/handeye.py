@@ -4,8 +4,9 @@ For image i the robot reports ``T_base_flange_i`` and the board pose in the came
 ``T_cam_target_i`` (ChArUco detection + solvePnP). With a static board,
 ``T_base_target = T_base_flange_i @ T_flange_cam @ T_cam_target_i`` for every i. This is OpenCV's
 ``calibrateHandEye`` convention ("gripper2base" = T_base_flange, "target2cam" = T_cam_target,
-"cam2gripper" = ``T_flange_cam``); OpenCV 5's Python bindings lack that function, so the five methods
-are implemented in :mod:`torm.hardware.handeye_solvers`. Residuals are the spread of the per-image
+"cam2gripper" = ``T_flange_cam``), solved with ``cv2.calibrateHandEye`` (present again in OpenCV 5.1's
+Python bindings); the numpy implementations of the same five methods in :mod:`torm.hardware.handeye_solvers`
+are the fallback for OpenCV builds without it and a cross-check in the tests. Residuals are the spread of the per-image
 ``T_base_target`` around their mean: translation (mm) and rotation (deg). Need >= 3 poses with
 rotations about different axes.
 
@@ -48,9 +49,32 @@ def calibrate_hand_eye(T_base_flange_list: Sequence[np.ndarray], T_cam_target_li
         raise ConfigError(f"hand-eye: {len(T_base_flange_list)} robot poses but {len(T_cam_target_list)} board poses")
     if len(T_base_flange_list) < 3:
         raise ConfigError("hand-eye calibration needs at least 3 pose pairs (better 10-20 with varied rotations)")
-    T = solve_ax_xb(T_base_flange_list, T_cam_target_list, method)
+    T = solve_hand_eye_cv2(T_base_flange_list, T_cam_target_list, method)
+    if T is None:  # an OpenCV build without calibrateHandEye
+        T = solve_ax_xb(T_base_flange_list, T_cam_target_list, method)
     if not np.all(np.isfinite(T)):
         raise ConfigError("hand-eye calibration returned NaN; the poses are degenerate (vary the wrist rotation)")
+    return T
+
+
+def solve_hand_eye_cv2(T_base_flange_list: Sequence[np.ndarray], T_cam_target_list: Sequence[np.ndarray],
+                       method: str = "PARK") -> np.ndarray | None:
+    """T_flange_cam (4, 4) from ``cv2.calibrateHandEye`` with ``CALIB_HAND_EYE_<method>``; None when this OpenCV
+    has no ``calibrateHandEye``. Inputs as :func:`calibrate_hand_eye` (metres)."""
+    key = method.upper()
+    if key not in METHODS:
+        from torm.errors import UnknownNameError
+
+        raise UnknownNameError("hand-eye method", method, METHODS)
+    if not hasattr(cv2, "calibrateHandEye"):
+        return None
+    R_g2b = [np.asarray(T, float)[:3, :3] for T in T_base_flange_list]
+    t_g2b = [np.asarray(T, float)[:3, 3].reshape(3, 1) for T in T_base_flange_list]
+    R_t2c = [np.asarray(T, float)[:3, :3] for T in T_cam_target_list]
+    t_t2c = [np.asarray(T, float)[:3, 3].reshape(3, 1) for T in T_cam_target_list]
+    R, t = cv2.calibrateHandEye(R_g2b, t_g2b, R_t2c, t_t2c, method=getattr(cv2, f"CALIB_HAND_EYE_{key}"))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, np.asarray(t).reshape(3)
     return T
 
 

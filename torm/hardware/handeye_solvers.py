@@ -1,7 +1,8 @@
 """Closed-form AX = XB hand-eye solvers (numpy), the methods of OpenCV's ``calibrateHandEye``.
 
-OpenCV 5's Python bindings no longer export ``cv2.calibrateHandEye`` (only the ``CALIB_HAND_EYE_*``
-constants remain), so the five classical methods are implemented here:
+:func:`torm.hardware.handeye.calibrate_hand_eye` uses ``cv2.calibrateHandEye``; these numpy versions of its five
+classical methods are the fallback for OpenCV builds whose Python bindings lack it (some 5.0 builds exported only
+the ``CALIB_HAND_EYE_*`` constants) and a cross-check in the tests:
 
 - ``TSAI``: Tsai & Lenz 1989 (modified Rodrigues vectors, linear least squares);
 - ``PARK``: Park & Martin 1994 (rotation logs, ``R = (M^T M)^-1/2 M^T``);
