@@ -184,3 +184,14 @@ def test_report_header_names_what_ran_and_a_comparison_warns_on_different_worlds
     write_report([run_dirs / "a", b], tmp_path / "cmp")
     md = (tmp_path / "cmp" / "report.md").read_text()
     assert "**Warning: the two runs differ in what they ran" in md and "realism A measured, B ideal" in md
+
+
+def test_html_page_escapes_renders_bold_and_keeps_intervals_on_one_line():
+    from torm.bench.report_html import to_html
+
+    page = to_html([("h2", "A <b>tag</b>"), ("p", "**Warning:** `x` & y"),
+                    ("table", ["Method", "Trials"], [["torm", "12/20 (60% [39-78])"]]),
+                    ("img", "plot.png", "success by scenario")], "t")
+    assert "A &lt;b&gt;tag&lt;/b&gt;" in page and "<b>Warning:</b> <code>x</code> &amp; y" in page
+    assert "**" not in page and "white-space: nowrap" in page
+    assert "<td>12/20 (60% [39-78])</td>" in page and '<img src="plot.png" alt="success by scenario">' in page

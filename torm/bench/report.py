@@ -23,7 +23,6 @@ own sections. ``table3.csv`` and ``objects.csv`` hold the success tables for spr
 from __future__ import annotations
 
 import datetime as dt
-import html
 import logging
 import math
 from collections.abc import Iterable
@@ -31,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from torm.bench.report_html import to_html
 from torm.bench.results import RESULTS_NAME, read_manifest, read_results
 from torm.bench.rows import trial_failed
 from torm.bench.stats import difference_interval, wilson_interval
@@ -574,35 +574,6 @@ def to_markdown(blocks: list[Block]) -> str:
     return "\n\n".join(out) + "\n"
 
 
-def _inline(text: str) -> str:
-    import re
-
-    t = html.escape(text)
-    t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
-    return re.sub(r"`(.+?)`", r"<code>\1</code>", t)
-
-
-def to_html(blocks: list[Block], title: str) -> str:
-    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-           "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;"
-           "margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:left}th{background:#eee}"
-           "img{max-width:100%}</style></head><body>"]
-    for b in blocks:
-        kind = b[0]
-        if kind in ("h1", "h2", "h3"):
-            out.append(f"<{kind}>{_inline(b[1])}</{kind}>")
-        elif kind == "p":
-            out.append(f"<p>{_inline(b[1])}</p>")
-        elif kind == "table":
-            out.append("<table><tr>" + "".join(f"<th>{_inline(h)}</th>" for h in b[1]) + "</tr>"
-                       + "".join("<tr>" + "".join(f"<td>{_inline(str(c))}</td>" for c in r) + "</tr>" for r in b[2])
-                       + "</table>")
-        elif kind == "img":
-            out.append(f"<p><img src='{html.escape(b[1])}' alt='{html.escape(b[2])}'></p>")
-    out.append("</body></html>")
-    return "\n".join(out) + "\n"
-
-
 def write_report(runs: list[str | Path], out_dir: str | Path | None = None) -> dict[str, Any]:
     """Write ``report.md``, ``report.html`` and PNG plots for one run, or a comparison of two.
 
@@ -627,7 +598,7 @@ def write_report(runs: list[str | Path], out_dir: str | Path | None = None) -> d
         blocks += [("h2", f"Run B: {b.name}")] + _demote(run_blocks(b, out, "b_"))
     md, page = out / "report.md", out / "report.html"
     md.write_text(to_markdown(blocks))
-    page.write_text(to_html(blocks, title))
+    page.write_text(to_html(blocks, title))  # torm.bench.report_html (Jinja2)
     csvs = []
     prefixes = [""] if len(loaded) == 1 else ["a_", "b_"]
     for prefix, run in zip(prefixes, loaded, strict=True):
