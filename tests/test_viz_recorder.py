@@ -39,3 +39,31 @@ def test_best_effort_recorder_swallows_errors(tmp_path, caplog):
     lenient.finish({"objects": []})
     lenient.close()
     assert "_scene failed" in caplog.text
+
+
+@pytest.mark.slow
+def test_every_panel_of_the_layout_is_logged(tmp_path):
+    """The saved layout shows only views whose images were logged (no blank panel), and the time-series panel
+    has the gripper opening, the pad force, the TCP error and every object's height."""
+    from torm import config
+    from torm.pipeline import TrialConfig, run_trial
+
+    rec = TrialRecorder(str(tmp_path / "t.rrd"))
+    paths: set[str] = set()
+    log = rec.rec.log
+
+    def spy(path, *args, **kwargs):
+        paths.add(path)
+        return log(path, *args, **kwargs)
+
+    rec.rec.log = spy
+    trial = config.from_dict(TrialConfig, {"scenario": "rw1", "method": "oracle"},
+                             overrides=["capture.n_views=6", "capture.scale=0.25"])
+    run_trial(trial, record=rec)
+    assert len(rec.image_views) == 2
+    for i in rec.image_views:
+        assert f"world/capture/view_{i:03d}/rgb" in paths and f"world/capture/view_{i:03d}/mask" in paths
+    assert "outcome" in paths
+    assert {"signals/gripper_opening_m", "signals/pad_force_n", "signals/tcp_error_mm"} <= paths
+    assert "signals/object_height_m/1_cylinder" in paths
+    assert (tmp_path / "t.rrd").stat().st_size > 10_000

@@ -439,7 +439,17 @@ def _attach_recorder(recorder: Any, backend: Any) -> None:
 
     def on_step(t: float) -> None:
         if recorder.due(t):
-            recorder.step(t, backend.arm.state().T_world_tcp)
+            T = backend.arm.state().T_world_tcp
+            signals: dict[str, float] = {}
+            try:  # what a pick looks like over time: the opening, the squeeze, how far the arm lags its command
+                signals["gripper_opening_m"] = float(backend.gripper.width())
+                signals["pad_force_n"] = float(backend.gripper.measured_force())
+                arm = backend.arm
+                target = arm.forward_kinematics(arm.inner.target())
+                signals["tcp_error_mm"] = 1000.0 * float(np.linalg.norm(T[:3, 3] - target[:3, 3]))
+            except (AttributeError, TypeError, ValueError):
+                pass
+            recorder.step(t, T, signals)
 
     backend.add_step_callback(on_step)
 

@@ -133,22 +133,33 @@ SCENE_ROOT = "world/scene"  # robot links, table and true objects (body entities
 RECON_ROOT = "world/reconstruction"
 
 
-def trial_blueprint(n_image_views: int = 2) -> Any:
-    """The saved layout of a trial recording: a 3-D view of the scene, the outcome text, a few camera images.
+#: Entity root of the per-step time series (gripper opening, pad force, TCP error, object heights).
+SIGNALS_ROOT = "signals"
+
+
+def trial_blueprint(image_views: Sequence[int] = (0,), n_image_views: int | None = None) -> Any:
+    """The saved layout of a trial recording: a 3-D view of the scene, the outcome text, the camera images of
+    ``image_views`` (indices of views whose images are logged) and the time series of every pick.
 
     The 3-D view shows the robot, the table, the true objects (moving with physics), the reconstructed meshes,
     the grasps and the TCP path, plus the camera frustums; depth images are left out of it (their point clouds
-    would swamp the scene) and shown only in the 2-D views.
+    would swamp the scene) and shown only in the 2-D views. The time-series view plots ``signals/**``: the
+    gripper opening (m), the pad force (N), the TCP tracking error (mm) and each true object's height (m), on
+    the simulated clock. ``n_image_views`` (old spelling): the first N views.
     """
     import rerun.blueprint as rrb
 
+    if n_image_views is not None:
+        image_views = range(n_image_views)
     images = [rrb.Spatial2DView(origin=f"world/capture/view_{i:03d}", name=f"view {i}",
-                                contents=["+ $origin/rgb", "+ $origin/mask"]) for i in range(n_image_views)]
+                                contents=["+ $origin/rgb", "+ $origin/mask"]) for i in image_views]
     view3d = rrb.Spatial3DView(origin="world", name="scene", contents=[
         "+ world/**", "- world/capture/**/depth", "- world/capture/**/sensor_depth", "- world/capture/**/rgb",
         "- world/capture/**/mask", "- world/points/**"])
+    series = rrb.TimeSeriesView(origin=SIGNALS_ROOT, name="pick signals")
     side = rrb.Vertical(rrb.TextDocumentView(origin="outcome", name="outcome"), *images)
-    return rrb.Blueprint(rrb.Horizontal(view3d, side, column_shares=[3, 1]), collapse_panels=True)
+    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(view3d, side, column_shares=[3, 1]), series,
+                                      row_shares=[3, 1]), collapse_panels=True)
 
 
 def _geom_mesh(model: Any, g: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -229,9 +240,11 @@ class TrialRecorder:
         self._moving: list[tuple[int, str]] = []
         self._world: Any = None
         self.rec: Any = None
+        #: Views whose images the layout shows (updated once the capture is logged, so no panel is blank).
+        self.image_views: tuple[int, ...] = (0,)
         try:
             self.rec = rr.RecordingStream("torm_trial", recording_id=recording_id)
-            self.rec.save(path, default_blueprint=trial_blueprint())
+            self.rec.save(path, default_blueprint=trial_blueprint(self.image_views))
             self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         except Exception as exc:
             if not best_effort:
@@ -302,7 +315,11 @@ class TrialRecorder:
     def _perception(self, capture: Capture, meshes: Sequence[Any], clouds: Sequence[Any],
                     grasps: Sequence[Sequence[Any]]) -> None:
         n = len(capture.views)
-        log_capture(self.rec, capture, image_views=sorted({int(i) for i in np.linspace(0, n - 1, min(8, n))}))
+        logged = sorted({int(i) for i in np.linspace(0, n - 1, min(8, n))})
+        log_capture(self.rec, capture, image_views=logged)
+        if capture.views and capture.views[0].rgb is not None:  # show two views that have images
+            self.image_views = tuple(logged[:: max(1, len(logged) // 2)][:2])
+            self.rec.send_blueprint(trial_blueprint(self.image_views), make_active=True, make_default=True)
         colors = instance_colors(max(len(clouds), 1))
         for k, (cloud, mesh) in enumerate(zip(clouds, meshes, strict=False)):
             c = tuple(int(v) for v in colors[k + 1])
@@ -318,18 +335,26 @@ class TrialRecorder:
         """Whether a motion sample at simulated time ``t`` (s) would be logged (rate limit ``period``)."""
         return self.rec is not None and t >= self._next
 
-    def step(self, t: float, T_world_tcp: np.ndarray) -> None:
-        """Log the body transforms and the TCP at simulated time ``t`` (s), rate-limited to ``period``."""
+    def step(self, t: float, T_world_tcp: np.ndarray, signals: dict[str, float] | None = None) -> None:
+        """Log the body transforms, the TCP and the ``signals`` (name -> value, e.g. ``gripper_opening_m``) at
+        simulated time ``t`` (s), rate-limited to ``period``; each true object's height is added as a signal."""
         if self.due(t):
-            self._guard(self._step, t, T_world_tcp)
+            self._guard(self._step, t, T_world_tcp, signals or {})
 
-    def _step(self, t: float, T_world_tcp: np.ndarray) -> None:
+    def _step(self, t: float, T_world_tcp: np.ndarray, signals: dict[str, float]) -> None:
         self._next = t + self.period
         self.rec.set_time("sim_time", duration=float(t))
         self._tcp.append(T_world_tcp[:3, 3].copy())
         self.rec.log("world/motion/tcp", rr.Points3D([T_world_tcp[:3, 3]], radii=0.006, colors=[(255, 80, 0)]))
+        for name, value in signals.items():
+            if value is not None and np.isfinite(value):
+                self.rec.log(f"{SIGNALS_ROOT}/{name}", rr.Scalars(float(value)))
         if self._world is not None:
             self._log_bodies()
+            d = self._world.data
+            for o in self._world.objects:
+                self.rec.log(f"{SIGNALS_ROOT}/object_height_m/{o.instance_id}_{o.name}",
+                             rr.Scalars(float(d.xpos[o.body_id][2])))
 
     # ------------------------------------------------------------------------------------------ end
     def finish(self, record: dict[str, Any]) -> None:
