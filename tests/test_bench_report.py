@@ -113,7 +113,7 @@ def test_report_numbers_match_rows(run_dirs):
     assert rec[("rw4", "torm")][5] == f"{found}/{3 * len(sel)}"
     # timing means (fake timings are fixed: total 4.0 s for torm)
     timing = {r[0]: r for r in _table(md, "Method | setup")}
-    assert timing["torm"][1:8] == ["0.10", "0.20", "0.30", "1.00", "0.40", "2.00", "4.00"]
+    assert timing["torm"][1:9] == ["0.10", "0.20", "0.30", "1.00", "0.40", "2.00", "0.00", "4.00"]  # other = 0
     # throughput from the manifest session timestamps
     sess = throughput(load_run(run_dirs / "a"))
     assert len(sess) == 1 and sess[0]["trials"] == 18

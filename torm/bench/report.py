@@ -335,6 +335,9 @@ def timing_means(rows: list[dict[str, Any]], method: str) -> dict[str, float | N
     sel = [r for r in rows if r["method"] == method and r.get("status") == "ok"]
     out = {s: _mean(_get(r, f"timings.{s}") for r in sel) for s in stages_of(rows)}
     out["total"] = _mean(_get(r, "timings.total") for r in sel)
+    staged = sum(v for k, v in out.items() if k != "total" and v is not None)
+    # time the stages do not account for (start-up, judging, recording): the stack then adds up to the total
+    out["other"] = max(0.0, out["total"] - staged) if out["total"] is not None else None
     out["wall"] = _mean(_get(r, "run.wall_s") for r in rows if r["method"] == method)
     return out
 
@@ -344,11 +347,12 @@ def timing_table(run: Run) -> list[Block]:
     body = []
     for m in methods:
         t = timing_means(run.rows, m)
-        body.append([m] + [_fmt(t[s]) for s in stages] + [_fmt(t["total"]), _fmt(t["wall"])])
+        body.append([m] + [_fmt(t[s]) for s in stages] + [_fmt(t["other"]), _fmt(t["total"]), _fmt(t["wall"])])
     return [("h2", "Time per stage"),
-            ("p", "Mean seconds per stage over trials that returned; `wall` is the mean wall time of a trial's "
-                  "worker process (all trials, including start-up)."),
-            ("table", ["Method", *stages, "total", "wall"], body)]
+            ("p", "Mean seconds per stage over trials that returned; `other` is the part of `total` no stage "
+                  "accounts for (so the stages and `other` add up to `total`); `wall` is the mean wall time of a "
+                  "trial's worker process (all trials, including start-up)."),
+            ("table", ["Method", *stages, "other", "total", "wall"], body)]
 
 
 def throughput_table(run: Run) -> list[Block]:
@@ -495,6 +499,7 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
                     ax.scatter([x + off for x, _ in sel], [v for _, v in sel], marker=marker, s=18,
                                label=f"{m} ({'failed' if failed else 'all picked'})", alpha=0.8)
         ax.set_xticks(range(len(scen)), scen)
+        ax.set_xlabel("scenario")
         ax.set_ylabel("silhouette IoU (trial mean)")
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
         ax.set_title("reconstruction quality vs outcome, per trial")
@@ -504,7 +509,7 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
     fig, ax = plt.subplots(figsize=(max(5.0, 1.3 * len(methods) + 3.5), 3.5))
     bottom = [0.0] * len(methods)
     means = [timing_means(rows, m) for m in methods]
-    for s in stages_of(rows):
+    for s in [*stages_of(rows), "other"]:  # adds up to the table's total
         vals = [t[s] or 0.0 for t in means]
         ax.bar(methods, vals, bottom=bottom, label=s)
         bottom = [b + v for b, v in zip(bottom, vals, strict=True)]
