@@ -25,6 +25,7 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import math
+import textwrap
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -515,7 +516,7 @@ def make_plots(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
         bottom = [b + v for b, v in zip(bottom, vals, strict=True)]
     ax.set_ylabel("mean time per trial (s)")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    ax.set_title(f"{run.name}: time per stage")
+    ax.set_title(textwrap.fill(f"{run.name}: time per stage", 48), fontsize=9)  # long run names wrap
     blocks.append(_save_plot(fig, out_dir, f"{prefix}timing_stack.png", "time per stage"))
     return blocks
 
