@@ -21,10 +21,10 @@ def tok(tmp_path):
 
 
 def test_basic_and_wordpiece_tokenisation(tok):
-    assert tok.basic_tokenize("  Clear,GLASS.\tCafé?") == ["clear", ",", "glass", ".", "cafe", "?"]
+    assert tok.tokenize("  Clear,GLASS.\tCafé?") == ["clear", ",", "glass", ".", "cafe", "?"]
     assert tok.tokenize("Transparent objects") == ["trans", "##par", "##ent", "object", "##s"]
-    assert tok.wordpiece("abb") == ["ab", "##b"]  # longest match first: "ab" then "##b"
-    assert tok.wordpiece("glassy") == ["[UNK]"]  # "##y" is not in the vocabulary
+    assert tok.tokenize("abb") == ["ab", "##b"]  # longest match first: "ab" then "##b"
+    assert tok.tokenize("glassy") == ["[UNK]"]  # "##y" is not in the vocabulary
     assert tok.tokenize("x" * 101) == ["[UNK]"]
     assert tok.encode("clear glass") == [2, 7, 8, 3]
     assert tok.decode([9, 10, 11, 12, 13]) == "transparent objects"
@@ -74,3 +74,33 @@ def test_box_helpers_and_nms():
     # box 0 overlaps box 1 (IoU 0.82) -> removed; box 3 has IoU 0.45 with box 1 -> kept
     np.testing.assert_array_equal(nms(boxes, scores, 0.5), [1, 3, 2])
     np.testing.assert_array_equal(nms(boxes, scores, 0.4), [1, 2])
+
+
+def _full_vocab(path):
+    """A 30522-entry WordPiece vocabulary laid out like bert-base-uncased's ([PAD] 0, [UNK] 100, [CLS] 101,
+    [SEP] 102, "." 1012, "?" 1029: ids Grounding DINO hard-codes), with real words, pieces and filler."""
+    words = ["clear", "glass", "transparent", "object", "cup", "bottle", "the", "a", "of", "wine", "beaker",
+             "trans", "par", "ent", "test", "tube", "flask", "petri", "dish", "shiny", "cafe", "plastic"]
+    pieces = ["##s", "##par", "##ent", "##y", "##er", "##ed", "##ing", "##ly", "##e", "##a", "##t"]
+    vocab = [f"[unused{i}]" for i in range(30522)]
+    vocab[0], vocab[100], vocab[101], vocab[102], vocab[103] = "[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]"
+    vocab[1012], vocab[1029], vocab[1010] = ".", "?", ","
+    entries = [*words, *pieces, *"abcdefghijklmnopqrstuvwxyz", *[f"##{c}" for c in "abcdefghijklmnop"]]
+    for i, w in enumerate(dict.fromkeys(entries)):  # each token once, as in a real vocabulary
+        vocab[2000 + i] = w
+    path.write_text("\n".join(vocab) + "\n")
+    return path
+
+
+def test_matches_transformers_bert_tokenizer_on_a_full_size_vocabulary(tmp_path):
+    pytest.importorskip("transformers")  # the dev extra installs it
+    from transformers.models.bert import BertTokenizerLegacy  # the pure-Python BERT tokenizer: an independent one
+
+    path = _full_vocab(tmp_path / "vocab.txt")
+    ours = WordPieceTokenizer.from_file(path)
+    ref = BertTokenizerLegacy(vocab_file=str(path), do_lower_case=True)
+    prompts = ["clear glass. transparent object.", "Wine Glass? test tubes, petri dish.", "Café  PLASTIC bottles",
+               "shiny beakers and flasks", "xyzzy glassware", "a" * 120, "clear\tglass\n. cup?"]
+    for p in prompts:
+        assert ours.tokenize(p) == ref.tokenize(p), p
+        assert ours.encode(p) == ref.encode(p), p

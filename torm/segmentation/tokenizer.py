@@ -1,17 +1,16 @@
 """A BERT WordPiece tokenizer (bert-base-uncased ``vocab.txt``) and Grounding DINO's text inputs.
 
-Re-implements what Grounding DINO needs from ``transformers.BertTokenizer`` without the dependency:
-basic tokenisation (text cleaning, lower-casing, accent stripping, punctuation and CJK splitting)
-followed by greedy longest-match-first WordPiece, ``[CLS] ... [SEP]`` framing, the attention mask and
-token type ids. :func:`grounding_text_inputs` adds the phrase-level self-attention mask and position
-ids of the official ``generate_masks_with_special_tokens_and_transfer_map`` (GroundingDINO
-``bertwarper.py``): tokens attend only within their phrase, phrases are delimited by ``[CLS]``,
-``[SEP]``, ``.`` and ``?``, and position ids restart at 0 after every delimiter.
+Tokenisation is Hugging Face's ``tokenizers`` library (``BertWordPieceTokenizer``: BERT's basic tokenisation
+-- text cleaning, lower-casing, accent stripping, punctuation and CJK splitting -- then greedy
+longest-match-first WordPiece), with ``[CLS] ... [SEP]`` framing. :func:`grounding_text_inputs` adds the
+phrase-level self-attention mask and position ids of the official
+``generate_masks_with_special_tokens_and_transfer_map`` (GroundingDINO ``bertwarper.py``): tokens attend only
+within their phrase, phrases are delimited by ``[CLS]``, ``[SEP]``, ``.`` and ``?``, and position ids restart at 0
+after every delimiter.
 """
 
 from __future__ import annotations
 
-import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,41 +21,24 @@ from torm.errors import ModelFileError
 _SPECIALS = ("[PAD]", "[UNK]", "[CLS]", "[SEP]")
 
 
-def _is_punctuation(ch: str) -> bool:
-    cp = ord(ch)
-    if 33 <= cp <= 47 or 58 <= cp <= 64 or 91 <= cp <= 96 or 123 <= cp <= 126:
-        return True
-    return unicodedata.category(ch).startswith("P")
-
-
-def _is_cjk(cp: int) -> bool:
-    return (0x4E00 <= cp <= 0x9FFF or 0x3400 <= cp <= 0x4DBF or 0x20000 <= cp <= 0x2A6DF or 0x2A700 <= cp <= 0x2B73F
-            or 0x2B740 <= cp <= 0x2B81F or 0x2B820 <= cp <= 0x2CEAF or 0xF900 <= cp <= 0xFAFF
-            or 0x2F800 <= cp <= 0x2FA1F)
-
-
-def _clean(text: str) -> str:
-    out = []
-    for ch in text:
-        cp = ord(ch)
-        if cp == 0 or cp == 0xFFFD or (unicodedata.category(ch).startswith("C") and ch not in "\t\n\r"):
-            continue
-        out.append(" " if ch.isspace() else (f" {ch} " if _is_cjk(cp) else ch))
-    return "".join(out)
-
-
 class WordPieceTokenizer:
-    """BERT uncased tokenizer from a ``vocab.txt`` (one token per line, line number = id)."""
+    """BERT uncased tokenizer from a ``vocab.txt`` (one token per line, line number = id), on ``tokenizers``."""
 
     def __init__(self, vocab: dict[str, int], lowercase: bool = True, max_chars_per_word: int = 100) -> None:
         missing = [t for t in _SPECIALS if t not in vocab]
         if missing:
             raise ModelFileError(f"the BERT vocabulary lacks the special token(s) {missing}; use bert-base-uncased "
                                  "vocab.txt")
+        from tokenizers import BertWordPieceTokenizer
+
         self.vocab = vocab
         self.inv_vocab = {i: t for t, i in vocab.items()}
         self.lowercase = lowercase
         self.max_chars_per_word = max_chars_per_word
+        self._tok = BertWordPieceTokenizer(dict(vocab), lowercase=lowercase, strip_accents=lowercase,
+                                           clean_text=True, handle_chinese_chars=True, wordpieces_prefix="##")
+        self._tok.post_processor = None  # framing added by encode(), truncation keeps the final [SEP]
+        self._tok.no_truncation()
 
     @classmethod
     def from_file(cls, path: str | Path, lowercase: bool = True) -> WordPieceTokenizer:
@@ -76,50 +58,13 @@ class WordPieceTokenizer:
     def token_id(self, token: str) -> int:
         return self.vocab.get(token, self.vocab["[UNK]"])
 
-    def basic_tokenize(self, text: str) -> list[str]:
-        """Whitespace, punctuation and CJK splitting; lower-casing and accent stripping when uncased."""
-        words = []
-        for word in _clean(text).split():
-            if self.lowercase:
-                word = "".join(c for c in unicodedata.normalize("NFD", word.lower()) if unicodedata.category(c) != "Mn")
-            cur = ""
-            for ch in word:
-                if _is_punctuation(ch):
-                    if cur:
-                        words.append(cur)
-                    words.append(ch)
-                    cur = ""
-                else:
-                    cur += ch
-            if cur:
-                words.append(cur)
-        return words
-
-    def wordpiece(self, word: str) -> list[str]:
-        """Greedy longest-match-first split of one word into vocabulary pieces (``[UNK]`` if impossible)."""
-        if len(word) > self.max_chars_per_word:
-            return ["[UNK]"]
-        pieces, start = [], 0
-        while start < len(word):
-            end, found = len(word), None
-            while start < end:
-                sub = word[start:end] if start == 0 else "##" + word[start:end]
-                if sub in self.vocab:
-                    found = sub
-                    break
-                end -= 1
-            if found is None:
-                return ["[UNK]"]
-            pieces.append(found)
-            start = end
-        return pieces
-
     def tokenize(self, text: str) -> list[str]:
-        return [p for w in self.basic_tokenize(text) for p in self.wordpiece(w)]
+        """WordPiece tokens of ``text`` without framing."""
+        return list(self._tok.encode(text, add_special_tokens=False).tokens)
 
     def encode(self, text: str, max_length: int | None = None) -> list[int]:
         """``[CLS] tokens [SEP]`` ids, truncated to ``max_length`` (keeping the final ``[SEP]``)."""
-        ids = [self.token_id(t) for t in self.tokenize(text)]
+        ids = list(self._tok.encode(text, add_special_tokens=False).ids)
         if max_length is not None and len(ids) + 2 > max_length:
             ids = ids[: max(max_length - 2, 0)]
         return [self.vocab["[CLS]"], *ids, self.vocab["[SEP]"]]
