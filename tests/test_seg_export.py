@@ -1,0 +1,92 @@
+"""Grounding DINO and SAM built with ``transformers`` (tiny configs of the published classes, random weights)
+export to torm's ONNX signatures and run through torm's grounded_sam segmenter on a committed render; the
+exported graphs reproduce PyTorch; a file of the wrong kind gets the named signature error."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("transformers")  # the dev extra (and torm[models]) install it
+
+from torm.cli import main  # noqa: E402
+from torm.errors import ModelFileError  # noqa: E402
+from torm.segmentation.export import load_models  # noqa: E402
+from torm.segmentation.grounded_sam import GroundedSAMConfig, GroundedSAMSegmenter  # noqa: E402
+
+RENDER = Path(__file__).resolve().parent / "data" / "learned_seg_view.png"  # a committed PBR render, 320x192
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gsam")
+    assert main(["-q", "export-models", "--out", str(out), "--random-weights", "--tiny", "--image-hw", "128",
+                 "160"]) == 0
+    return out
+
+
+def test_export_writes_models_cards_and_a_config(exported):
+    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    for key in ("gdino_model", "sam_encoder", "sam_decoder", "bert_vocab"):
+        assert Path(cfg[key]).is_file(), key
+    card = json.loads((exported / "grounding_dino.onnx.json").read_text())
+    assert card["opset"] == 17 and len(card["sha256"]) == 64 and card["licence"] == "Apache-2.0"
+    assert card["inputs"]["img"] == [1, 3, 128, 160] and card["inputs"]["text_token_mask"][1:] == [8, 8]
+
+
+def test_exported_models_segment_a_render_through_torm(exported):
+    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    seg = GroundedSAMSegmenter(GroundedSAMConfig(**cfg, box_threshold=0.0, text_threshold=0.0, max_detections=3))
+    rgb = cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB)
+    timings: dict[str, float] = {}
+    mask, dets = seg.segment_image(rgb, timings)  # random weights: the masks mean nothing, the plumbing is real
+    assert mask.shape == rgb.shape[:2] and mask.dtype == np.int32 and 1 <= len(dets) <= 3
+    assert set(timings) >= {"gdino", "sam_encoder", "sam_decoder"}
+
+
+def test_exported_graphs_reproduce_pytorch(exported):
+    import onnxruntime as ort
+    import torch
+
+    from torm.segmentation.tokenizer import WordPieceTokenizer, grounding_text_inputs
+
+    g, s = load_models(random_weights=True, tiny=True)  # the same seeded weights the export used
+    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    t = grounding_text_inputs(WordPieceTokenizer.from_file(cfg["bert_vocab"]), cfg["prompt"])
+    img = np.random.default_rng(1).normal(size=(1, 3, 128, 160)).astype(np.float32)
+    feeds = {"img": img, "input_ids": t.input_ids, "attention_mask": t.attention_mask,
+             "position_ids": t.position_ids, "token_type_ids": t.token_type_ids,
+             "text_token_mask": t.self_attention_mask}
+    logits, boxes = ort.InferenceSession(cfg["gdino_model"]).run(None, feeds)
+    from torm.segmentation.export import _gdino_wrapper
+
+    with torch.no_grad():
+        ref = _gdino_wrapper(g)(*(torch.from_numpy(np.asarray(feeds[k])) for k in feeds))
+    np.testing.assert_allclose(logits, ref[0].numpy(), atol=1e-4)
+    np.testing.assert_allclose(boxes, ref[1].numpy(), atol=1e-4)
+    # the decoder with a box prompt (labels 2, 3) is transformers' SamModel(input_boxes=...)
+    emb = np.random.default_rng(2).normal(size=(1, 256, 64, 64)).astype(np.float32)
+    box = np.array([100.0, 150.0, 400.0, 380.0], np.float32)
+    masks, iou, low = ort.InferenceSession(cfg["sam_decoder"]).run(None, {
+        "image_embeddings": emb, "point_coords": box.reshape(1, 2, 2),
+        "point_labels": np.array([[2.0, 3.0]], np.float32),
+        "mask_input": np.zeros((1, 1, 256, 256), np.float32), "has_mask_input": np.zeros(1, np.float32),
+        "orig_im_size": np.array([768.0, 1024.0], np.float32)})
+    with torch.no_grad():
+        r = s(image_embeddings=torch.from_numpy(emb), input_boxes=torch.from_numpy(box)[None, None],
+              multimask_output=False)
+    assert masks.shape == (1, 1, 768, 1024)
+    np.testing.assert_allclose(low, r.pred_masks[:, 0].numpy(), atol=1e-5)
+    np.testing.assert_allclose(iou, r.iou_scores[:, 0].numpy(), atol=1e-5)
+
+
+def test_a_file_of_the_wrong_kind_names_the_expected_signature(exported):
+    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    cfg["gdino_model"] = cfg["sam_encoder"]
+    with pytest.raises(ModelFileError, match=r"grounded_sam.gdino_model .*input_ids"):
+        GroundedSAMSegmenter(GroundedSAMConfig(**cfg))
