@@ -65,3 +65,16 @@ def test_trial_prints_json_into_a_pipe_and_a_summary_on_a_terminal(monkeypatch, 
     assert capsys.readouterr().out.startswith("trial rw3 seed 0 method torm: 2/3 objects picked")
     assert cli(["trial", "--scenario", "rw3", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["summary"]["method"] == "torm"
+
+
+def test_bench_shorthands_become_trial_overrides():
+    from torm.commands.bench import trial_overrides
+
+    parser = build_parser()
+    args = parser.parse_args(["bench", "--out", "x", "--segmenter", "learned", "--renderer", "pbr", "--depth-model",
+                              "statistical", "--realism", "ideal", "--views", "20", "--set", "capture.scale=0.25"])
+    assert trial_overrides(args) == ("segmentation.segmenter=learned", "capture.renderer=pbr",
+                                     "capture.depth_model=statistical", "world.realism=ideal", "capture.n_views=20",
+                                     "capture.scale=0.25")
+    assert "lab" in parser._subparsers._group_actions[0].choices["bench"].format_help()  # every suite is listed
+    assert build_parser().parse_args(["capture", "--scenario", "rw1", "--out", "x"]).progress  # on by default

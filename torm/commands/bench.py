@@ -32,7 +32,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = add_parser(subparsers, "bench", __doc__,
                    help="run the closed-loop benchmark grid into a run folder (resumable)")
-    p.add_argument("--suite", default="rw", help="scenario suite (rw, syn; default rw)")
+    from sim.scenes.scenario import list_suites
+    from torm.pipeline import DEPTH_MODELS, REALISM_PROFILES, RENDERERS
+    from torm.segmentation import SEGMENTERS
+
+    p.add_argument("--suite", default="rw", help=f"scenario suite ({', '.join(list_suites())}; default rw)")
     p.add_argument("--scenario", action="append", default=[], metavar="NAME",
                    help="only these scenarios of the suite (repeatable or comma-separated; default all)")
     p.add_argument("--trials", type=count_arg, default=1, help="trials per scenario and method (default 1)")
@@ -57,6 +61,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a trial config value, e.g. --set capture.n_views=20 (repeatable)")
+    p.add_argument("--segmenter", choices=SEGMENTERS, default=None,
+                   help="silhouette source of --method torm (= --set segmentation.segmenter=...; default gt)")
+    p.add_argument("--renderer", choices=RENDERERS, default=None,
+                   help="image renderer (= --set capture.renderer=...; default mujoco)")
+    p.add_argument("--depth-model", choices=DEPTH_MODELS, default=None,
+                   help="sensor-depth model (= --set capture.depth_model=...; default ideal)")
+    p.add_argument("--realism", choices=REALISM_PROFILES, default=None,
+                   help="realism profile (= --set world.realism=...; benchmarks default to measured)")
+    p.add_argument("--views", type=count_arg, default=None, help="views per capture (= --set capture.n_views=...)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
     p.add_argument("--robot-config", "--robot", dest="robot_config", default=None, metavar="NAME|FILE",
                    help="robot folder name or robot YAML (default inovo_2f85); --robot: old name, still accepted")
@@ -67,7 +80,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def trial_overrides(args: argparse.Namespace) -> tuple[str, ...]:
     """--set overrides plus the backend/robot flags, as ``key=value`` strings (the flags come first)."""
-    flags = {"backend": args.backend, "robot": args.robot_config, "hardware_config": args.hardware_config}
+    flags = {"backend": args.backend, "robot": args.robot_config, "hardware_config": args.hardware_config,
+             "segmentation.segmenter": getattr(args, "segmenter", None),
+             "capture.renderer": getattr(args, "renderer", None),
+             "capture.depth_model": getattr(args, "depth_model", None),
+             "world.realism": getattr(args, "realism", None), "capture.n_views": getattr(args, "views", None)}
     out = [f"{k}={v}" for k, v in flags.items() if v is not None]
     if args.arm_robot:
         out.append("arm_robot=true")

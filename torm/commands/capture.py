@@ -43,7 +43,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--depth-model", default="ideal", choices=("ideal", "statistical", "stereo"),
                    help="sensor-depth model (sim/depth): ideal (glass invisible), statistical, stereo (default ideal)")
     p.add_argument("--no-occlusion", action="store_true", help="skip computing the occlusion ratio")
-    p.add_argument("--progress", action="store_true", help="show a progress bar on stderr")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="no progress bar on stderr (shown by default, like torm bench)")
+    p.add_argument("--progress", dest="progress", action="store_true", help=argparse.SUPPRESS)  # old opt-in, kept
     add_record(p, "the capture")
     p.add_argument("--renderer", choices=("mujoco", "pbr"), default="mujoco",
                    help="who renders RGB: MuJoCo's rasteriser or the Mitsuba path tracer (depth and masks: MuJoCo)")
