@@ -90,3 +90,22 @@ def test_a_file_of_the_wrong_kind_names_the_expected_signature(exported):
     cfg["gdino_model"] = cfg["sam_encoder"]
     with pytest.raises(ModelFileError, match=r"grounded_sam.gdino_model .*input_ids"):
         GroundedSAMSegmenter(GroundedSAMConfig(**cfg))
+
+
+def test_hybrid_prompting_learned_boxes_prompt_sam(exported):
+    """box_source: learned: the learned segmenter's instances prompt SAM (no Grounding DINO, no vocabulary)."""
+    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    seg = GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=cfg["sam_encoder"], sam_decoder=cfg["sam_decoder"],
+                                                 box_source="learned"))
+    rgb = cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB)
+    boxes = seg.detect(rgb)
+    from torm.segmentation.learned import LearnedSegmenter
+
+    _, learned = LearnedSegmenter().segment_image(rgb)
+    top = sorted(learned, key=lambda d: -d.score)[: seg.config.max_detections]  # the most confident instances
+    assert len(top) >= 1 and len(boxes.scores_n) == len(top)
+    np.testing.assert_allclose(boxes.boxes_nx4, [d.box_xyxy for d in top])
+    mask, dets = seg.segment_image(rgb, {})
+    assert mask.shape == rgb.shape[:2] and len(dets) == len(top)
+    with pytest.raises(Exception, match="box_source"):
+        GroundedSAMConfig(sam_encoder="x", sam_decoder="y", box_source="yolo")

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -80,6 +80,10 @@ SAM_DECODER_OUTPUTS = (
 )
 
 
+#: Where SAM's box prompts come from (``GroundedSAMConfig.box_source``).
+BOX_SOURCES = ("gdino", "learned")
+
+
 def sam_encoder_specs(image_size: int) -> tuple[tuple[TensorSpec, ...], tuple[TensorSpec, ...]]:
     side = image_size // 16
     return ((TensorSpec("image", ("image", "input_image", "x", "images", "*"), (1, 3, image_size, image_size)),),
@@ -98,6 +102,10 @@ class GroundedSAMConfig:
     Pixel sizes refer to the original capture images. ``gdino_image_size`` (H, W) forces a fixed input
     size (needed when the export has static image dims; read from the model when it does).
     ``providers`` empty = CUDA when available, else CPU. ``threads`` 0 = onnxruntime's default.
+    ``box_source``: ``gdino`` (the paper: Grounding DINO boxes from ``prompt``) or ``learned`` (hybrid prompting for
+    users with SAM weights but no Grounding DINO: each instance of torm's learned segmenter, configured by
+    ``learned`` (a :class:`torm.segmentation.learned.LearnedConfig` mapping), prompts SAM with its box; then
+    ``gdino_model`` and ``bert_vocab`` are not needed).
     """
 
     gdino_model: str = ""
@@ -123,8 +131,14 @@ class GroundedSAMConfig:
     keep_largest_component: bool = False
     providers: tuple[str, ...] = ()
     threads: int = 0
+    box_source: str = "gdino"
+    learned: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.box_source not in BOX_SOURCES:
+            from torm.errors import UnknownNameError
+
+            raise UnknownNameError("grounded_sam.box_source", self.box_source, BOX_SOURCES)
         for name in ("box_threshold", "text_threshold", "nms_iou", "max_box_fraction"):
             _fraction(name, getattr(self, name))
         if not self.prompt.strip():
@@ -210,16 +224,24 @@ class GroundedSAMSegmenter(Segmenter):
     def __init__(self, config: GroundedSAMConfig) -> None:
         self.config = c = config
         providers = list(c.providers) or None
-        if not c.bert_vocab:
-            raise ModelFileError("grounded_sam.bert_vocab is not set; point it at bert-base-uncased's vocab.txt")
-        self.tokenizer = WordPieceTokenizer.from_file(c.bert_vocab)
-        self.gdino: BoundSession = open_session(c.gdino_model, "grounded_sam.gdino_model", GDINO_INPUTS,
-                                                GDINO_OUTPUTS, providers, c.threads)
         enc_in, enc_out = sam_encoder_specs(c.sam_image_size)
         self.sam_encoder = open_session(c.sam_encoder, "grounded_sam.sam_encoder", enc_in, enc_out, providers,
                                         c.threads)
         self.sam_decoder = open_session(c.sam_decoder, "grounded_sam.sam_decoder", SAM_DECODER_INPUTS,
                                         SAM_DECODER_OUTPUTS, providers, c.threads)
+        self.boxer = None
+        if c.box_source == "learned":  # hybrid prompting: the learned segmenter's instances prompt SAM
+            from torm.config import from_dict
+            from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
+
+            self.boxer = LearnedSegmenter(from_dict(LearnedConfig, dict(c.learned), where="grounded_sam.learned"))
+            self.gdino = None
+            return
+        if not c.bert_vocab:
+            raise ModelFileError("grounded_sam.bert_vocab is not set; point it at bert-base-uncased's vocab.txt")
+        self.tokenizer = WordPieceTokenizer.from_file(c.bert_vocab)
+        self.gdino: BoundSession | None = open_session(c.gdino_model, "grounded_sam.gdino_model", GDINO_INPUTS,
+                                                       GDINO_OUTPUTS, providers, c.threads)
         ids_dims = static_dims(self.gdino, "input_ids")
         self._text_len = ids_dims[1]
         img_dims = static_dims(self.gdino, "img")
@@ -234,7 +256,13 @@ class GroundedSAMSegmenter(Segmenter):
         return gdino_resize_hw(h, w, self.config.gdino_short_side, self.config.gdino_max_size)
 
     def detect(self, rgb: np.ndarray) -> DecodedBoxes:
-        """Grounding DINO boxes (xyxy pixels of ``rgb``), scores and phrases, after thresholds and NMS."""
+        """Box prompts (xyxy pixels of ``rgb``), scores and phrases: Grounding DINO's after thresholds and NMS, or
+        with ``box_source: learned`` the boxes of the learned segmenter's instances."""
+        if self.boxer is not None:
+            _, dets = self.boxer.segment_image(rgb)
+            dets = sorted(dets, key=lambda d: -d.score)[: self.config.max_detections]
+            return DecodedBoxes(np.array([d.box_xyxy for d in dets], float).reshape(-1, 4),
+                                np.array([d.score for d in dets], float), tuple(d.label for d in dets))
         c, t = self.config, self.text
         h, w = rgb.shape[:2]
         img = gdino_preprocess(rgb, self.gdino_input_hw(h, w))
@@ -312,8 +340,9 @@ class GroundedSAMSegmenter(Segmenter):
             log.debug("view %d: %d detections", i, len(d))
         timings["total"] = time.perf_counter() - t0
         out = np.stack(masks)
-        info: dict[str, Any] = {"segmenter": self.name, "prompt": self.config.prompt,
-                                "providers": self.gdino.session.get_providers()}
+        info: dict[str, Any] = {"segmenter": self.name, "box_source": self.config.box_source,
+                                "prompt": self.config.prompt if self.boxer is None else None,
+                                "providers": self.sam_encoder.session.get_providers()}
         if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
             info["quality"] = mask_quality(out, capture.masks())
             info["quality_reference"] = mask_reference(capture)
