@@ -201,7 +201,10 @@ def test_trial_record_holds_the_drawn_values_and_the_pick_uses_the_drawn_force()
     assert r["grip_force_n"] == pytest.approx(drawn.grip_force_n)
     assert r["applied"]["captures"][0]["views"] == 3 and r["applied"]["execution"]["motions"] > 3
     assert rec["context"]["realism"] == "measured"
-    assert rec["config"]["pick"]["grip_force"] == 130.0  # the requested config is recorded as given
+    # the saved config holds the force the pick used; config_used says what replaced what (issue 42)
+    assert rec["config"]["pick"]["grip_force"] == pytest.approx(drawn.grip_force_n)
+    used = rec["config_used"]["pick.grip_force"]
+    assert used["configured"] == 130.0 and used["used"] == pytest.approx(drawn.grip_force_n)
 
 
 def test_ideal_reproduces_the_world_without_realism():
