@@ -78,3 +78,12 @@ def test_bench_shorthands_become_trial_overrides():
                                      "capture.scale=0.25")
     assert "lab" in parser._subparsers._group_actions[0].choices["bench"].format_help()  # every suite is listed
     assert build_parser().parse_args(["capture", "--scenario", "rw1", "--out", "x"]).progress  # on by default
+
+
+def test_old_option_names_still_work_and_say_they_are_deprecated(capsys):
+    args = build_parser().parse_args(["trial", "--robot", "mini6_lg90", "--rrd", "x.rrd"])
+    assert (args.robot_config, args.record) == ("mini6_lg90", "x.rrd")
+    err = capsys.readouterr().err
+    assert "--robot is deprecated" in err and "use --robot-config" in err and "--rrd is deprecated" in err
+    build_parser().parse_args(["trial", "--robot-config", "mini6_lg90"])
+    assert "deprecated" not in capsys.readouterr().err

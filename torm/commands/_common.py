@@ -49,19 +49,38 @@ def add_overrides(parser: argparse.ArgumentParser, example: str, target: str) ->
     )
 
 
+class _DeprecatedAlias(argparse.Action):
+    """Store the value; when given through an old spelling (``deprecated``), say once on stderr which name
+    replaces it (the old names are kept for one release)."""
+
+    def __init__(self, *args: Any, deprecated: tuple[str, ...] = (), **kwargs: Any) -> None:
+        self.deprecated = deprecated
+        super().__init__(*args, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if option_string in self.deprecated:
+            new = next(o for o in self.option_strings if o not in self.deprecated)
+            sys.stderr.write(f"torm: {option_string} is deprecated and will be removed in the next release; "
+                             f"use {new}\n")
+        setattr(namespace, self.dest, values)
+
+
 def add_record(parser: argparse.ArgumentParser, what: str) -> None:
     """``--record FILE.rrd`` (rerun recording of ``what``), with the old spelling ``--rrd`` kept as an alias."""
     parser.add_argument("--record", "--rrd", dest="record", default=None, metavar="FILE.rrd",
-                        help=f"write a rerun recording of {what} to this file (--rrd: old name, still accepted)")
+                        action=_DeprecatedAlias, deprecated=("--rrd",),
+                        help=f"write a rerun recording of {what} to this file (--rrd: old name, deprecated)")
 
 
 def add_robot(parser: argparse.ArgumentParser, default: str | None, none_ok: bool = False) -> None:
     """``--robot-config NAME|FILE`` with the old spelling ``--robot`` kept as an alias."""
     extra = ", or 'none' for no robot" if none_ok else ""
     parser.add_argument("--robot-config", "--robot", dest="robot_config", default=default, metavar="NAME|FILE",
+                        action=_DeprecatedAlias, deprecated=("--robot",),
                         help=f"robot folder name under sim/robots or a robot YAML (default {default or 'inovo_2f85'})"
                         f"{extra}; "
-                        "--robot: old name, still accepted")
+                        "--robot: old name, deprecated")
 
 
 def seed_arg(text: str) -> int:

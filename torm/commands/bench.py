@@ -24,7 +24,7 @@ import argparse
 import signal
 from typing import Any
 
-from torm.commands._common import add_parser, count_arg, print_json
+from torm.commands._common import add_parser, add_robot, count_arg, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -71,8 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="realism profile (= --set world.realism=...; benchmarks default to measured)")
     p.add_argument("--views", type=count_arg, default=None, help="views per capture (= --set capture.n_views=...)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
-    p.add_argument("--robot-config", "--robot", dest="robot_config", default=None, metavar="NAME|FILE",
-                   help="robot folder name or robot YAML (default inovo_2f85); --robot: old name, still accepted")
+    add_robot(p, None)
     p.add_argument("--hardware-config", default=None, metavar="FILE", help="hardware YAML for --backend real")
     p.add_argument("--arm-robot", action="store_true", help="allow the real arm to move (--backend real)")
     p.set_defaults(func=run)
