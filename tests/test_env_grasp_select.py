@@ -74,3 +74,24 @@ def test_bad_actions_and_missing_candidates():
             TormGraspSelectEnv(perception="lidar")
     finally:
         env.close()
+
+
+def test_measured_variant_draws_the_harness_realism_per_layout():
+    import gymnasium as gym
+
+    from sim.realism import sample_realism
+    from torm.env import GRASP_SELECT_MEASURED_ID
+
+    env = gym.make(GRASP_SELECT_MEASURED_ID, scenario="rw1")
+    try:
+        _, info = env.reset(seed=3)
+        drawn = sample_realism("measured", 3, [False])
+        assert info["realism"] == "measured" and info["layout_seed"] == 3
+        assert info["grip_force_n"] == pytest.approx(min(max(drawn.grip_force_n, 20.0), 235.0))
+        assert env.unwrapped._backend.realism.pad_friction == pytest.approx(drawn.pad_friction)
+        _, reward, terminated, _, step_info = env.step(0)
+        assert terminated and reward in (0.0, 1.0) and "outcome" in step_info
+    finally:
+        env.close()
+    with pytest.raises(Exception, match="realism"):
+        gym.make("torm/TormGraspSelect-v0", realism="perfect")

@@ -25,6 +25,9 @@ GRASP_SELECT_MAX_EPISODE_STEPS = 1
 
 PICK_ID = "torm/TormPick-v0"
 GRASP_SELECT_ID = "torm/TormGraspSelect-v0"
+#: TormGraspSelect in the harness's ``measured`` world (contact, grip force, mass, calibration and execution
+#: errors drawn per layout from sourced ranges), where a grasp choice can fail as the harness's picks do.
+GRASP_SELECT_MEASURED_ID = "torm/TormGraspSelectMeasured-v0"
 
 
 def register_envs() -> None:
@@ -36,8 +39,12 @@ def register_envs() -> None:
     if GRASP_SELECT_ID not in registry:
         gymnasium.register(id=GRASP_SELECT_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
                            max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS)
+    if GRASP_SELECT_MEASURED_ID not in registry:
+        gymnasium.register(id=GRASP_SELECT_MEASURED_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
+                           max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS, kwargs={"realism": "measured"})
 
 
 register_envs()
 
-__all__ = ["GRASP_SELECT_ID", "GRASP_SELECT_MAX_EPISODE_STEPS", "PICK_ID", "PICK_MAX_EPISODE_STEPS", "register_envs"]
+__all__ = ["GRASP_SELECT_ID", "GRASP_SELECT_MAX_EPISODE_STEPS", "GRASP_SELECT_MEASURED_ID", "PICK_ID",
+           "PICK_MAX_EPISODE_STEPS", "register_envs"]

@@ -78,6 +78,11 @@ class GraspSelectEnvConfig:
         pick: pick execution settings.
         criteria: the success test's tolerances.
         render_size: (H, W) of ``render()`` images.
+        realism: the harness's realism profile (``ideal``, ``measured``, ``stress``: contact, grip force, object
+            mass, calibration and execution errors drawn per layout from the sourced ranges, :mod:`sim.realism`),
+            so that a grasp choice can fail the way the harness's picks do; the drawn pad force replaces
+            ``pick.grip_force``.
+        stress: the multiplier of the ``stress`` profile.
     """
 
     scenario: str = "rw1"
@@ -96,8 +101,14 @@ class GraspSelectEnvConfig:
     pick: PickConfig = field(default_factory=PickConfig)
     criteria: SuccessCriteria = field(default_factory=SuccessCriteria)
     render_size: tuple[int, int] = (240, 320)
+    realism: str = "ideal"
+    stress: float = 1.0
 
     def __post_init__(self) -> None:
+        from torm.pipeline import REALISM_PROFILES
+
+        if self.realism not in REALISM_PROFILES:
+            raise UnknownNameError("realism", self.realism, REALISM_PROFILES)
         if self.perception not in PERCEPTIONS:
             raise UnknownNameError("perception", self.perception, PERCEPTIONS)
         for name in ("top_k", "n_points", "object_points", "n_views"):
@@ -194,9 +205,22 @@ class TormGraspSelectEnv(gym.Env):
 
         cfg = self.config
         self._close_world()
-        world = build_world(cfg.scenario, int(layout), robot=cfg.robot)
+        realism = None
+        if cfg.realism != "ideal":  # drawn per layout from the sourced ranges, as a harness trial draws them
+            from sim.realism import sample_realism
+            from sim.scenes.objects import get_object
+            from sim.scenes.scenario import get_scenario
+
+            hollow = [get_object(n).hollow for n in get_scenario(cfg.scenario).objects]
+            realism = sample_realism(cfg.realism, int(layout), hollow, stress=cfg.stress)
+        world = build_world(cfg.scenario, int(layout), robot=cfg.robot, realism=realism)
         cam = CameraRigConfig(n_views=cfg.n_views, scale=cfg.capture_scale)
-        self._world, self._backend, self._layout = world, SimBackend(world, camera_config=cam), int(layout)
+        backend = SimBackend(world, camera_config=cam, realism=realism)
+        self._world, self._backend, self._layout = world, backend, int(layout)
+        self._pick = cfg.pick
+        if realism is not None and realism.grip_force_n is not None:
+            lo, hi = backend.gripper.force_range_n
+            self._pick = dataclasses.replace(cfg.pick, grip_force=min(max(float(realism.grip_force_n), lo), hi))
         self._tool = ToolFrame.from_robot_config(world.robot_config)
         if cfg.target_object > len(world.objects):
             raise ConfigError(f"target_object {cfg.target_object} but scenario {cfg.scenario!r} has objects "
@@ -315,7 +339,9 @@ class TormGraspSelectEnv(gym.Env):
             "object_summary": object_summary(pts, len(self._grasps), cfg.top_k),
             "object_points": (sub - self._centroid).astype(np.float32),
         }
-        info.update(target_object=target, n_candidates=len(self._grasps), perceived=cloud is not None)
+        info.update(target_object=target, n_candidates=len(self._grasps), perceived=cloud is not None,
+                    scenario=cfg.scenario, layout_seed=self._layout, perception=cfg.perception, realism=cfg.realism,
+                    grip_force_n=self._pick.grip_force)
         self._done = False
         return self._observation(), info
 
@@ -336,9 +362,9 @@ class TormGraspSelectEnv(gym.Env):
         dirs = free_directions(xy, others_xy, self._world.workspace_bounds, cfg.pick.translate_distance)
         from sim.judge import PickJudge
 
-        judge = PickJudge(self._backend, cfg.criteria, cfg.pick)  # the reward is the judge's verdict
+        judge = PickJudge(self._backend, cfg.criteria, self._pick)  # the reward is the judge's verdict
         try:
-            loop_res = execute_pick(self._backend, [self._grasps[i]], dirs, cfg.pick, ik=self._ik, tool=self._tool,
+            loop_res = execute_pick(self._backend, [self._grasps[i]], dirs, self._pick, ik=self._ik, tool=self._tool,
                                     observer=judge)
         finally:
             judge.close()
