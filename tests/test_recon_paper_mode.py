@@ -173,9 +173,10 @@ def test_band_gives_the_full_mesh_and_the_same_gradients(scene, bf16):
 @pytest.mark.parametrize(("split_rows", "bf16"), [(2, "off"), (10**9, "off"), (2, "on")])
 def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows, bf16):
     """The band (with its gradient pass in two halves from ``split_rows`` rows up) follows the full evaluation."""
-    import torm.reconstruction.dmtet as dm
 
-    monkeypatch.setattr(dm, "GRAD_SPLIT_ROWS", split_rows)
+    import torm.reconstruction.dmtet_surface as surface  # where the gradient pass reads it
+
+    monkeypatch.setattr(surface, "GRAD_SPLIT_ROWS", split_rows)
     _, masks, K, T = scene
     grid = build_tet_grid(BOUNDS, 16)
     cfg = DMTetConfig(param="mlp", iterations=12, views_per_batch=2, eval_every=6, mlp_hidden=32, mlp_fit_iters=60,
@@ -192,9 +193,10 @@ def test_banded_run_follows_the_reference_run(scene, monkeypatch, split_rows, bf
 def test_side_thread_gives_the_same_run(scene, monkeypatch):
     """The side thread (eq. 4 during the render, half of each gradient-free evaluation, half of the band's gradient
     pass) changes no value: the loss history and the final field are bit-identical to the run without it."""
-    import torm.reconstruction.dmtet as dm
 
-    monkeypatch.setattr(dm, "GRAD_SPLIT_ROWS", 2)  # the gradient pass in halves at this small size too
+    import torm.reconstruction.dmtet_surface as surface
+
+    monkeypatch.setattr(surface, "GRAD_SPLIT_ROWS", 2)  # the gradient pass in halves at this small size too
     _, masks, K, T = scene
     grid = build_tet_grid(BOUNDS, 20)
     cfg = DMTetConfig(param="mlp", iterations=10, views_per_batch=2, eval_every=5, mlp_hidden=32, mlp_fit_iters=60,
