@@ -146,3 +146,26 @@ def test_the_real_backend_declares_table_and_fixtures_from_its_hardware_config()
     assert [f.name for f in cal.fixtures] == ["rack"] and cal.obstacle_points()[:, 2].max() == pytest.approx(0.072)
     with pytest.raises(ConfigError, match="unknown keys"):
         HardwareConfig(host="10.0.0.2", fixtures=({"name": "rack", "mesh_file": "x.stl"},))
+
+
+def test_observer_group_forwards_each_event_to_every_observer_that_has_it():
+    from torm.execution.observer import ObserverGroup
+
+    seen: list[tuple[str, str]] = []
+
+    class Judge:
+        def phase_started(self, name):
+            seen.append(("judge", name))
+
+        def perceived(self, clouds):
+            seen.append(("judge", "perceived"))
+
+    class Logger:
+        def phase_started(self, name):
+            seen.append(("logger", name))
+
+    group = ObserverGroup(Judge(), None, Logger())
+    group.phase_started("lift")
+    group.perceived([])
+    assert seen == [("judge", "lift"), ("logger", "lift"), ("judge", "perceived")]
+    assert not hasattr(group, "attempt_ended") and not hasattr(group, "ground_truth")

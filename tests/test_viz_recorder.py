@@ -66,4 +66,5 @@ def test_every_panel_of_the_layout_is_logged(tmp_path):
     assert "outcome" in paths
     assert {"signals/gripper_opening_m", "signals/pad_force_n", "signals/tcp_error_mm"} <= paths
     assert "signals/object_height_m/1_cylinder" in paths
+    assert "events" in paths  # the pick's phases, beside the time series
     assert (tmp_path / "t.rrd").stat().st_size > 10_000

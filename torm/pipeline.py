@@ -32,6 +32,7 @@ from torm.backend.blind import LoopBackend
 from torm.capture.render_settings import PbrSettings
 from torm.config import check_finite, to_dict
 from torm.errors import ConfigError, TormError, UnknownNameError
+from torm.execution.observer import ObserverGroup
 from torm.execution.pick import PickConfig
 from torm.execution.pick_config import check_grip_force
 from torm.execution.success import Outcome, SuccessCriteria
@@ -344,7 +345,8 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
 
             judge = TrialJudge(backend, config.success, config.pick)
         oracle = judge.gt.object_meshes if (judge is not None and config.method == "oracle") else None
-        attempts = run_loop(config, LoopBackend(backend), rng, timings, result, observer=judge,
+        watcher = ObserverGroup(judge, recorder) if recorder is not None else judge  # the recording logs the phases
+        attempts = run_loop(config, LoopBackend(backend), rng, timings, result, observer=watcher,
                             oracle_meshes=oracle, recorder=recorder)
         perceptions = result.pop("perceptions", [])
         if judge is not None:

@@ -135,6 +135,8 @@ RECON_ROOT = "world/reconstruction"
 
 #: Entity root of the per-step time series (gripper opening, pad force, TCP error, object heights).
 SIGNALS_ROOT = "signals"
+#: Entity of the pick's stage events (attempt start and end, each phase's start and end).
+EVENTS_ROOT = "events"
 
 
 def trial_blueprint(image_views: Sequence[int] = (0,), n_image_views: int | None = None) -> Any:
@@ -145,7 +147,8 @@ def trial_blueprint(image_views: Sequence[int] = (0,), n_image_views: int | None
     the grasps and the TCP path, plus the camera frustums; depth images are left out of it (their point clouds
     would swamp the scene) and shown only in the 2-D views. The time-series view plots ``signals/**``: the
     gripper opening (m), the pad force (N), the TCP tracking error (mm) and each true object's height (m), on
-    the simulated clock. ``n_image_views`` (old spelling): the first N views.
+    the simulated clock; the text log beside it lists each pick's phases as they start and end.
+    ``n_image_views`` (old spelling): the first N views.
     """
     import rerun.blueprint as rrb
 
@@ -157,9 +160,11 @@ def trial_blueprint(image_views: Sequence[int] = (0,), n_image_views: int | None
         "+ world/**", "- world/capture/**/depth", "- world/capture/**/sensor_depth", "- world/capture/**/rgb",
         "- world/capture/**/mask", "- world/points/**"])
     series = rrb.TimeSeriesView(origin=SIGNALS_ROOT, name="pick signals")
+    events = rrb.TextLogView(origin=EVENTS_ROOT, name="pick phases")
     side = rrb.Vertical(rrb.TextDocumentView(origin="outcome", name="outcome"), *images)
-    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(view3d, side, column_shares=[3, 1]), series,
-                                      row_shares=[3, 1]), collapse_panels=True)
+    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(view3d, side, column_shares=[3, 1]),
+                                      rrb.Horizontal(series, events, column_shares=[3, 1]), row_shares=[3, 1]),
+                         collapse_panels=True)
 
 
 def _geom_mesh(model: Any, g: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -355,6 +360,26 @@ class TrialRecorder:
             for o in self._world.objects:
                 self.rec.log(f"{SIGNALS_ROOT}/object_height_m/{o.instance_id}_{o.name}",
                              rr.Scalars(float(d.xpos[o.body_id][2])))
+
+    # ------------------------------------------------------------------------------------------ pick events
+    def _event(self, text: str, level: str = "INFO") -> None:
+        self.rec.log(EVENTS_ROOT, rr.TextLog(text, level=level))
+
+    def attempt_started(self, grasp: Any) -> None:
+        """A pick attempt starts (the grasp's centre, m, world)."""
+        p = np.round(np.asarray(grasp.T_world_grasp)[:3, 3], 3).tolist()
+        self._guard(self._event, f"attempt at {p} m (object {getattr(grasp, 'object_id', '?')})")
+
+    def phase_started(self, name: str) -> None:
+        self._guard(self._event, f"{name} started", "DEBUG")
+
+    def phase_ended(self, name: str) -> None:
+        self._guard(self._event, f"{name} ended", "DEBUG")
+
+    def attempt_ended(self, result: Any) -> None:
+        outcome = getattr(getattr(result, "outcome", None), "value", getattr(result, "outcome", "?"))
+        self._guard(self._event, f"attempt ended: {outcome} (the robot's belief; the judge scores afterwards)",
+                    "INFO")
 
     # ------------------------------------------------------------------------------------------ end
     def finish(self, record: dict[str, Any]) -> None:

@@ -24,3 +24,25 @@ class PickObserver(Protocol):
     def phase_ended(self, name: str) -> None: ...
 
     def attempt_ended(self, result: Any) -> None: ...
+
+
+class ObserverGroup:
+    """Several observers as one: every event goes to each observer that has a method for it, in order (the judge
+    first, then loggers). One-way, like any observer."""
+
+    _EVENTS = ("attempt_started", "phase_started", "phase_ended", "attempt_ended", "perceived")
+
+    def __init__(self, *observers: Any) -> None:
+        self.observers = tuple(o for o in observers if o is not None)
+
+    def __getattr__(self, name: str) -> Any:
+        if name not in self._EVENTS or not any(hasattr(o, name) for o in self.observers):
+            raise AttributeError(name)
+
+        def forward(*args: Any) -> None:
+            for o in self.observers:
+                fn = getattr(o, name, None)
+                if fn is not None:
+                    fn(*args)
+
+        return forward
