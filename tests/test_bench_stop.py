@@ -55,9 +55,13 @@ def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path, engine):
         assert "cancel" in kinds and "/robot/disable" in kinds
         assert kinds.index("cancel") < kinds.index("/robot/disable")
         assert [m["msg"]["id"] for m in after if m.get("topic") == f"{ACTION}/cancel"][-1] == ""
-        # no motion was commanded after the cancel, and the modelled arm stands still
-        i_cancel = next(i for i, m in enumerate(after) if m.get("topic") == f"{ACTION}/cancel")
+        # no motion was commanded after the cancel, and the modelled arm stands still. Pool: after the first cancel
+        # (the worker's stop path). Ray: after the last cancel (a cancelled task can take a while to reach the trial on
+        # a loaded machine; the driver's backstop cancel and disable come after every trial process is gone).
+        cancels = [i for i, m in enumerate(after) if m.get("topic") == f"{ACTION}/cancel"]
+        i_cancel = cancels[0] if engine == "pool" else cancels[-1]
         assert not [m for m in after[i_cancel:] if m.get("topic") == f"{ACTION}/goal" and m["op"] == "publish"]
+        assert any(m.get("service") == "/robot/disable" for m in after[i_cancel:])  # disabled after that cancel
         assert ros.controller.end_time() <= time.monotonic()
         # the interrupted trial left no row (it runs again on resume) and the session says why it ended
         assert read_results(out / "results.jsonl").rows == []

@@ -130,6 +130,10 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write("usage: python -m torm.bench.worker JOB.json\n")
         return 2
     install_sigterm_handler()
+    # SIGINT stops the trial like SIGTERM does (recorded as ``terminated``), also when the worker was started with
+    # SIGINT ignored (a background job inherits SIG_IGN, and Python then installs no handler); the worker runs in its
+    # own session, so a terminal's Ctrl-C never reaches it: only a deliberate signal does.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     job_path = Path(args[0])
     job = json.loads(job_path.read_text())
     scratch = job_path.parent if job_path.parent.name.startswith("torm-trial-") else None
