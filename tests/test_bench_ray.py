@@ -2,33 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-
-import pytest
-import ray
 
 from torm.bench import BenchConfig, build_grid, run_benchmark
 from torm.bench.isolate import TrialJob
 from torm.bench.results import comparable, read_results
-
-TESTS_DIR = str(Path(__file__).resolve().parent)
-
-
-@pytest.fixture(scope="module")
-def local_ray():
-    old = os.environ.get("PYTHONPATH")
-    # Ray workers (and the trial processes they start) import the fake trial module from tests/
-    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (TESTS_DIR, old) if p)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        yield
-    finally:
-        ray.shutdown()
-        if old is None:
-            os.environ.pop("PYTHONPATH", None)
-        else:
-            os.environ["PYTHONPATH"] = old
 
 
 def _rows(out):

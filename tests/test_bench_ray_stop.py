@@ -12,7 +12,6 @@ import time
 from pathlib import Path
 
 import pytest
-import ray
 
 from sim.robot_config import load_robot_config
 from torm.bench import BenchConfig, run_benchmark
@@ -22,23 +21,6 @@ from torm.errors import BenchmarkError
 from torm.hardware.remote_stop import STOP_TIMEOUT_S
 from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
 from torm.testing.fake_rosbridge import ACTION, FakeRosbridge
-
-TESTS_DIR = str(Path(__file__).resolve().parent)
-
-
-@pytest.fixture(scope="module")
-def local_ray():
-    old = os.environ.get("PYTHONPATH")
-    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (TESTS_DIR, old) if p)
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
-    try:
-        yield
-    finally:
-        ray.shutdown()
-        if old is None:
-            os.environ.pop("PYTHONPATH", None)
-        else:
-            os.environ["PYTHONPATH"] = old
 
 
 def _trial_pids(marker: str) -> list[int]:
