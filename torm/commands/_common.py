@@ -83,26 +83,25 @@ def add_robot(parser: argparse.ArgumentParser, default: str | None, none_ok: boo
                         "--robot: old name, deprecated")
 
 
-def seed_arg(text: str) -> int:
-    """argparse ``type`` of a ``--seed``: a non-negative integer (numpy's generators refuse negative seeds)."""
+def _int_at_least(text: str, low: int, below: str, hint: str) -> int:
+    """``text`` as an int >= ``low``; argparse.ArgumentTypeError saying ``below`` / ``hint`` otherwise."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; give a seed 0, 1, 2, ...") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative; give a seed 0, 1, 2, ...")
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; {hint}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"{value} {below}; {hint}")
     return value
+
+
+def seed_arg(text: str) -> int:
+    """argparse ``type`` of a ``--seed``: a non-negative integer (numpy's generators refuse negative seeds)."""
+    return _int_at_least(text, 0, "is negative", "give a seed 0, 1, 2, ...")
 
 
 def count_arg(text: str) -> int:
     """argparse ``type`` of a count (``--views``, ``--workers``, ``--trials``): a positive integer."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; give a count >= 1") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} is not a count; give a number >= 1")
-    return value
+    return _int_at_least(text, 1, "is not a count", "give a number >= 1")
 
 
 def check_output_dir(path: str | os.PathLike, flag: str = "--out") -> Path:
