@@ -97,12 +97,30 @@ class DataRecipe:
         default_factory=lambda: {"train": 60, "val": 4, "test_layouts": 3, "test_shapes": 3})
     test_views: int = 12
     seed: int = 0
+    # segmenter v4 (transfer to real photos); the defaults reproduce the v3 data exactly
+    distractor_fraction: float = 0.0  # share of PBR scenes with opaque look-alikes (training/clutter.py)
+    distractors_per_scene: tuple[int, int] = (1, 6)
+    room_fraction: float = 0.0  # share of PBR scenes with a textured floor and walls
+    lighting_fraction: float = 0.0  # share of PBR scenes with the room / panel light scaled (dim, key, back-lit)
+    label_opaque: bool = True  # False: opaque objects are background in the masks (only glass is labelled)
+    renderer_weights: dict[str, float] = dataclasses.field(default_factory=dict)  # per-shard renderer draw
 
     def __post_init__(self) -> None:
-        from torm.segmentation.training.render import RENDERERS
+        from torm.segmentation.training.render import RENDERERS, SHARD_RENDERERS
 
         if self.renderer not in RENDERERS:
             raise ConfigError(f"data.renderer {self.renderer!r}; valid choices: {', '.join(RENDERERS)}")
+        bad_r = sorted(set(self.renderer_weights) - set(SHARD_RENDERERS))
+        if bad_r or any(float(w) < 0 for w in self.renderer_weights.values()) or (
+                self.renderer_weights and sum(self.renderer_weights.values()) <= 0):
+            raise ConfigError(f"data.renderer_weights {dict(self.renderer_weights)}: keys among "
+                              f"{', '.join(SHARD_RENDERERS)}, weights >= 0 with a positive sum")
+        if not all(0 <= f <= 1 for f in (self.distractor_fraction, self.room_fraction, self.lighting_fraction)):
+            raise ConfigError("data.distractor_fraction, data.room_fraction and data.lighting_fraction must be in "
+                              "[0, 1]")
+        dlo, dhi = self.distractors_per_scene
+        if not 0 <= dlo <= dhi <= 20:
+            raise ConfigError("data.distractors_per_scene must be (lo, hi) with 0 <= lo <= hi <= 20")
         lo, hi = self.objects_per_scene
         if not 1 <= lo <= hi <= 10:
             raise ConfigError("data.objects_per_scene must be (lo, hi) with 1 <= lo <= hi <= 10")
@@ -214,6 +232,17 @@ def scene_seed(recipe: DataRecipe, split: str, shard: int, j: int) -> int:
     return int(recipe.seed * 10_000_000 + _SPLIT_SALT[split] * 1_000_000 + shard * 1000 + j)
 
 
+def shard_renderer(recipe: DataRecipe, split: str, shard: int) -> str:
+    """The renderer of shard ``shard`` of ``split``: ``recipe.renderer``, or a draw from ``renderer_weights`` seeded
+    by (recipe seed, split, shard) (one renderer per shard: Mitsuba's variant is fixed per process)."""
+    if not recipe.renderer_weights:
+        return recipe.renderer
+    names = sorted(recipe.renderer_weights)
+    w = np.array([float(recipe.renderer_weights[n]) for n in names])
+    rng = np.random.default_rng([recipe.seed, _SPLIT_SALT[split], shard, 0x5EED])
+    return str(rng.choice(names, p=w / w.sum()))
+
+
 def shard_path(root: Path, split: str, shard: int) -> Path:
     """Where shard ``shard`` of ``split`` lives under ``root``."""
     return Path(root) / split / f"shard_{shard:05d}.npz"
@@ -223,12 +252,13 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
     """Render shard ``shard`` of ``split`` into ``root`` unless it exists; returns its path."""
     from sim.scenes.scenario import Scenario
     from sim.world import build_world
-    from torm.segmentation.training.render import render_scene
+    from torm.segmentation.training.render import SceneLook, render_scene
 
     path = shard_path(root, split, shard)
     if path.exists():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
+    renderer = shard_renderer(recipe, split, shard)
     rgbs, masks, poses, Ks, scene_idx, meta = [], [], [], [], [], []
     for j in range(recipe.scenes_per_shard):
         seed = scene_seed(recipe, split, shard, j)
@@ -258,14 +288,20 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
             centres = np.array([world.object_pose(o.instance_id)[:3, 3] for o in world.objects])
             K_v = np.stack([recipe.crop_K(T, centres, rng) for T in Ts])
             w, h = recipe.width, recipe.height
-        rgb, mask = render_scene(recipe.renderer, world, Ts, K_v, w, h, rng, recipe.spp)
+        look = SceneLook.draw(recipe, rng) if renderer != "mujoco" else SceneLook()
+        rgb, mask, look_info = render_scene(renderer, world, Ts, K_v, w, h, rng, recipe.spp, look)
+        if not recipe.label_opaque:  # only glass is labelled: opaque objects become background
+            for o in world.objects:
+                if not o.transparent:
+                    mask[mask == o.instance_id] = 0
         rgbs.append(rgb)
         masks.append(mask.astype(np.uint8))
         poses.append(Ts)
         Ks.append(K_v)
         scene_idx += [len(meta)] * len(Ts)
         meta.append({"seed": seed, "objects": list(objs), "spacing": spacing, "fixture": fixture,
-                     "materials": ["glass" if o.transparent else "opaque" for o in world.objects]})
+                     "materials": ["glass" if o.transparent else "opaque" for o in world.objects],
+                     "renderer": renderer, **look_info})
     tmp = path.with_suffix(".tmp.npz")
     np.savez_compressed(tmp, rgb=np.concatenate(rgbs), mask=np.concatenate(masks), T_world_cam=np.concatenate(poses),
                         K=np.concatenate(Ks), scene=np.asarray(scene_idx, np.int32),
@@ -306,11 +342,14 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
     rec_path.write_text(json.dumps(mine, indent=2, sort_keys=True))
     jobs = [(s, i) for s in splits for i in range(recipe.shards.get(s, 0))]
     todo = [(s, i) for s, i in jobs if not shard_path(root, s, i).exists()]
-    if workers > 1 and len(todo) > 1:
+    variants = {shard_renderer(recipe, s, i) for s, i in todo} & {"pbr", "pbr_scalar"}
+    if (workers > 1 and len(todo) > 1) or len(variants) > 1:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=mp.get_context("spawn")) as ex:
+        # a fresh process per shard when Mitsuba variants mix (the variant is fixed per process)
+        per_child = {"max_tasks_per_child": 1} if len(variants) > 1 else {}
+        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=mp.get_context("spawn"), **per_child) as ex:
             done = ex.map(_render_job, [(recipe, s, i, str(root)) for s, i in todo])
             for _ in tqdm(done, total=len(todo), desc="render shards", unit="shard", disable=not progress):
                 pass

@@ -5,13 +5,19 @@
 ``pbr``     the physically based renderer of ``sim.render`` (refraction, Fresnel; its own randomised
             table textures and lights per layout seed). Needs the renderer of branch i10r.
 
+``pbr_scalar`` the same renderer on Mitsuba's ``scalar_rgb`` variant (plain ``path`` integrator: speckled glass
+            interiors): the look of machines without libLLVM, so that no one renderer's look is learned.
+
 Both return ``rgb_vxhxwx3`` uint8 and ``mask_vxhxw`` int32 (0 background, k = object k) for cameras
 ``T_world_cam`` (V, 4, 4) in OpenCV axes (world frame, m) with per-view intrinsics ``K`` (V, 3, 3) at the
-given size.
+given size. A :class:`SceneLook` adds (PBR only) opaque distractors and room surfaces
+(:mod:`~torm.segmentation.training.clutter`) and rescales the room and panel light; with clutter the masks
+come from the renderer's exact first-hit id pass, so distractors occlude the glass behind them.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -19,6 +25,36 @@ import numpy as np
 from torm.errors import ConfigError
 
 RENDERERS = ("mujoco", "pbr")
+#: renderers a dataset shard can be drawn with (``DataRecipe.renderer_weights``)
+SHARD_RENDERERS = ("mujoco", "pbr", "pbr_scalar")
+
+
+@dataclass(frozen=True)
+class SceneLook:
+    """What a PBR scene adds to the world: ``n_distractors`` opaque look-alikes, ``room`` surfaces, light scales
+    (``env_scale`` room light, ``area_scale`` ceiling panels; 1 = as drawn from the layout seed) and the seed of
+    the clutter draw."""
+
+    n_distractors: int = 0
+    room: bool = False
+    env_scale: float = 1.0
+    area_scale: float = 1.0
+    clutter_seed: int = 0
+
+    @classmethod
+    def draw(cls, recipe: Any, rng: np.random.Generator) -> SceneLook:
+        """Draw a look from a :class:`~torm.segmentation.training.dataset.DataRecipe`'s v4 fractions."""
+        lo, hi = recipe.distractors_per_scene
+        n = int(rng.integers(lo, hi + 1)) if rng.random() < recipe.distractor_fraction else 0
+        room = bool(rng.random() < recipe.room_fraction)
+        env, area = 1.0, 1.0
+        if rng.random() < recipe.lighting_fraction:  # dim room + strong panel, bright room + no panel, ...
+            env, area = float(np.exp(rng.uniform(np.log(0.2), np.log(2.0)))), float(rng.choice([0.0, 0.3, 1.0, 4.0]))
+        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)))
+
+    @property
+    def plain(self) -> bool:
+        return self.n_distractors == 0 and not self.room and self.env_scale == 1.0 and self.area_scale == 1.0
 
 
 def _randomise_mujoco(model: Any, rng: np.random.Generator) -> None:
@@ -74,10 +110,12 @@ def render_mujoco(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray
 
 
 def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int, height: int,
-               rng: np.random.Generator, spp: int = 16, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Physically based RGB (``sim.render``'s Mitsuba renderer, its default settings but ``spp``; table texture and
-    lights randomised from the world's layout seed) + MuJoCo's instance masks of the same cameras (the masks the
-    pipeline's captures carry). No render cache: dataset shards are the cache."""
+               rng: np.random.Generator, spp: int = 16, threads: int = 1, look: SceneLook | None = None,
+               variant: str = "auto") -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Physically based RGB (``sim.render``'s Mitsuba renderer, its default settings but ``spp`` and ``variant``;
+    table texture and lights randomised from the world's layout seed) + instance masks of the same cameras: MuJoCo's
+    (the masks the pipeline's captures carry) for a plain look, the renderer's id pass when ``look`` adds clutter.
+    No render cache: dataset shards are the cache. Returns (rgb, mask, what the look drew)."""
     try:
         from sim.render import PbrSettings, RenderCamera, make_renderer
     except ImportError as exc:
@@ -86,24 +124,48 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
     from sim.camera_rig import CameraRigConfig, SimCameraRig
 
     del rng  # the PBR scene is randomised from world.seed by the renderer itself
+    look = look or SceneLook()
     cams = [RenderCamera(K, T, width, height) for T, K in zip(T_world_cam_vx4x4, K_vx3x3, strict=True)]
-    r = make_renderer("pbr", world, PbrSettings(spp=spp, cache=False, threads=threads))
+    r = make_renderer("pbr", world, PbrSettings(spp=spp, cache=False, threads=threads, variant=variant))
+    info: dict[str, Any] = {"variant": variant}
     try:
-        rgb = np.stack([v.rgb for v in r.render(cams, rgb=True, instance=False)])
+        extra = None
+        if look.n_distractors or look.room:
+            import mitsuba as mi
+
+            from sim.render.cache import cache_root
+            from sim.render.scene import describe_world
+            from torm.segmentation.training.clutter import clutter_entries
+
+            desc = describe_world(world, centre=r.centre)
+            extra, drawn = clutter_entries(desc, np.random.default_rng(look.clutter_seed), look.n_distractors,
+                                           look.room, mi, cache_root() / "meshes")
+            info.update(drawn)
+        if not look.plain:
+            info.update(env_scale=look.env_scale, area_scale=look.area_scale)
+        views = r.render(cams, rgb=True, instance=extra is not None, extra_emitters=extra, env_scale=look.env_scale,
+                         area_scale=look.area_scale)
+        rgb = np.stack([v.rgb for v in views])
+        if extra is not None:
+            return rgb, np.stack([v.instance for v in views]).astype(np.int32), info
     finally:
         r.close()
     cfg = CameraRigConfig(n_views=len(cams), width=width, height=height, channels=("mask",))
     with SimCameraRig.from_world(world, cfg) as rig:
         masks = np.stack([rig.render_arrays(T, K, ("mask",))["mask"] for T, K in
                           zip(T_world_cam_vx4x4, K_vx3x3, strict=True)])
-    return rgb, masks.astype(np.int32)
+    return rgb, masks.astype(np.int32), info
 
 
 def render_scene(renderer: str, world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int,
-                 height: int, rng: np.random.Generator, spp: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Dispatch to :func:`render_mujoco` or :func:`render_pbr`."""
+                 height: int, rng: np.random.Generator, spp: int = 16, look: SceneLook | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Dispatch to :func:`render_mujoco` or :func:`render_pbr` (``pbr``: the machine's default variant,
+    ``pbr_scalar``: ``scalar_rgb``); returns (rgb, mask, what the look drew)."""
     if renderer == "mujoco":
-        return render_mujoco(world, T_world_cam_vx4x4, K_vx3x3, width, height, rng)
-    if renderer == "pbr":
-        return render_pbr(world, T_world_cam_vx4x4, K_vx3x3, width, height, rng, spp)
-    raise ConfigError(f"unknown renderer {renderer!r}; valid choices: {', '.join(RENDERERS)}")
+        rgb, mask = render_mujoco(world, T_world_cam_vx4x4, K_vx3x3, width, height, rng)
+        return rgb, mask, {}
+    if renderer in ("pbr", "pbr_scalar"):
+        return render_pbr(world, T_world_cam_vx4x4, K_vx3x3, width, height, rng, spp, look=look,
+                          variant="scalar_rgb" if renderer == "pbr_scalar" else "auto")
+    raise ConfigError(f"unknown renderer {renderer!r}; valid choices: {', '.join(SHARD_RENDERERS)}")

@@ -4,8 +4,11 @@ Loss: foreground BCE + soft Dice, boundary-band BCE (positive weight ``boundary_
 ``centre_head``, also the centre heatmap's mean squared error (sigmoid output vs Gaussians of ``centre_sigma_px``
 around each instance's mean pixel, weight ``centre_loss_weight``) and the L1 error of the predicted offset to the
 centre on object pixels (in units of ``OFFSET_SCALE`` px, weight ``offset_loss_weight``). Augmentation
-per sample (seeded ``numpy.random.Generator``): horizontal flip, random ``crop`` window, brightness x
-U(0.7, 1.3), contrast x U(0.7, 1.3), per-channel gain x U(0.9, 1.1), Gaussian noise sigma U(0, 6) grey levels.
+per sample (seeded ``numpy.random.Generator``): random ``crop`` window, optional magnification (``zoom_range``),
+horizontal flip, then either brightness x U(0.7, 1.3), contrast x U(0.7, 1.3), per-channel gain x U(0.9, 1.1),
+Gaussian noise sigma U(0, 6) grey levels (v1-v3), or, with ``sensor_effects`` > 0, the real-camera effects of
+:mod:`~torm.segmentation.training.augment` (vignetting, chromatic aberration, exposure, white balance, blur,
+shot noise, gamma, JPEG).
 AdamW with a cosine learning-rate schedule over ``steps``; ``init_from`` starts from an earlier run's weights
 (fine-tuning, e.g. MuJoCo-pretrained weights on PBR renders), from a ``best.pt`` or an exported ``.onnx`` file
 (BatchNorms folded: train it with ``freeze_bn``, every BatchNorm in eval mode). A checkpoint (model, optimiser,
@@ -32,6 +35,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 
 from torm.errors import ConfigError
+from torm.segmentation.training.augment import sensor_effects, zoom
 from torm.segmentation.training.model import OFFSET_SCALE, ExportWrapper, SegUNet, load_onnx_weights, normalise
 from torm.segmentation.training.targets import centre_targets, targets
 
@@ -69,6 +73,9 @@ class TrainConfig:
     freeze_bn: bool = False  # BatchNorms in eval mode while training (needed after an .onnx init_from)
     select_on: str = "fg_iou"  # the validation score that picks the exported checkpoint: fg_iou | object_iou
     val_split: str = "val"  # the data split that score is measured on: val | val_rig (the rig's full frames)
+    # segmenter v4 (training/augment.py); the defaults reproduce v3's augmentation exactly
+    zoom_range: tuple[float, float] = (1.0, 1.0)  # magnification s drawn log-uniformly; s > 1 crops and enlarges
+    sensor_effects: float = 0.0  # probability scale of the real-camera effects (0 = off, 1 = SENSOR_RANGES' own)
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
@@ -84,6 +91,10 @@ class TrainConfig:
             raise ConfigError(f"train.val_split {self.val_split!r}; valid choices: {', '.join(VAL_SPLITS)}")
         if self.centre_sigma_px <= 0 or self.centre_loss_weight < 0 or self.offset_loss_weight < 0:
             raise ConfigError("train: need centre_sigma_px > 0 and centre/offset loss weights >= 0")
+        if not 1.0 <= self.zoom_range[0] <= self.zoom_range[1] <= 4.0:
+            raise ConfigError(f"train.zoom_range {self.zoom_range} must be (lo, hi) with 1 <= lo <= hi <= 4")
+        if not 0.0 <= self.sensor_effects <= 1.0:
+            raise ConfigError(f"train.sensor_effects {self.sensor_effects} must be in [0, 1]")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -112,13 +123,19 @@ class Batcher:
             t = self.tgt[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
             if self.centre is not None:
                 t = np.concatenate([t, self.centre[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)])
+            if c.zoom_range[1] > 1.0:
+                s = float(np.exp(r.uniform(np.log(c.zoom_range[0]), np.log(c.zoom_range[1]))))
+                img, t = zoom(img, t, s, r, offset_channels=(3, 4) if len(t) > 2 else None)
             if r.random() < 0.5:
                 img, t = img[:, ::-1], t[:, :, ::-1].copy()
                 if len(t) > 2:
                     t[4] = -t[4]
-            m = img.mean()
-            img = (img - m) * r.uniform(0.7, 1.3) + m * r.uniform(0.7, 1.3)
-            img = img * r.uniform(0.9, 1.1, 3) + r.normal(0, r.uniform(0, 6), img.shape)
+            if c.sensor_effects > 0:
+                img, _ = sensor_effects(np.ascontiguousarray(img), r, c.sensor_effects)
+            else:
+                m = img.mean()
+                img = (img - m) * r.uniform(0.7, 1.3) + m * r.uniform(0.7, 1.3)
+                img = img * r.uniform(0.9, 1.1, 3) + r.normal(0, r.uniform(0, 6), img.shape)
             xs.append(np.clip(img, 0, 255).astype(np.float32).transpose(2, 0, 1))
             ys.append(t)
         x, y = np.ascontiguousarray(np.stack(xs)), np.ascontiguousarray(np.stack(ys))
