@@ -497,6 +497,8 @@ class SimBackend:
         if renderer not in ("mujoco", "pbr"):
             raise UnknownNameError("capture.renderer", renderer, ("mujoco", "pbr"))
         self.renderer, self._render_settings = renderer, render_settings
+        #: render each capture's reference pass (the empty workspace, ``CameraView.reference_rgb``)
+        self.reference = False
         self._rgb_renderer: Any = None
         self._rig = None
         self.realism = realism if realism is not None else world.realism
@@ -553,7 +555,7 @@ class SimBackend:
         With a realism record, the views carry the *reported* poses and intrinsics (hand-eye error, per-view
         jitter, intrinsics error: :func:`sim.realism.perturb_capture`); the images are rendered with the true ones.
         """
-        return self._report(self._get_rig().capture(n_views))
+        return self._report(self._get_rig().capture(n_views, reference=self.reference))
 
     def _report(self, capture: Capture) -> Capture:
         """``capture`` as the realism record's calibration errors report it (unchanged without a record)."""
@@ -574,7 +576,8 @@ class SimBackend:
 
     def capture_views(self, n_views: int | None, indices: Any, channels: Any = None) -> Capture:
         """Render only the layout views ``indices`` (of ``n_views``) with ``channels`` (default: the rig's)."""
-        return self._report(self._get_rig().capture(n_views, indices=indices, channels=channels))
+        return self._report(self._get_rig().capture(n_views, indices=indices, channels=channels,
+                                                    reference=self.reference))
 
     def calibration(self) -> Calibration:
         """What the simulated cell declares, as a lab would: the table height of the scene description (stated

@@ -527,11 +527,31 @@ class SimCameraRig:
                            glass=groups[geom_ids] == GROUP_GLASS, instance=self._lut[geom_ids], renderer=self)
         return self.depth_model.sensor_depth(scene, rng)
 
-    def _external_rgb(self, T_world_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    def _external_rgb(self, T_world_cam: np.ndarray, K: np.ndarray, noise_seed: int = 0) -> np.ndarray:
         from sim.render.base import RenderCamera
 
         cam = RenderCamera(K, T_world_cam, self._off.width, self._off.height)
-        return self.rgb_renderer.render([cam], rgb=True, instance=False)[0].rgb
+        kw = {"noise_seed": noise_seed} if noise_seed else {}
+        return self.rgb_renderer.render([cam], rgb=True, instance=False, **kw)[0].rgb
+
+    def reference_rgb(self, poses_vx4x4: np.ndarray, K: np.ndarray | None = None) -> list[np.ndarray]:
+        """(H, W, 3) uint8 RGB of each pose over the empty workspace: the objects hidden, the same renderer, render
+        noise independent of the scene's views (PBR ``noise_seed`` 1). Needs a rig built with :meth:`from_world`."""
+        from sim.reference_pass import objects_hidden
+
+        if self.world is None:
+            raise CaptureError("a reference pass needs the world's objects: build the rig with SimCameraRig.from_world")
+        K = self.K() if K is None else np.asarray(K, dtype=np.float64)
+        out = []
+        with objects_hidden(self.world):
+            for T in np.asarray(poses_vx4x4, dtype=np.float64).reshape(-1, 4, 4):
+                mujoco.mj_forward(self.model, self.data)
+                if self.rgb_renderer is not None:
+                    out.append(self._external_rgb(T, K, noise_seed=1))
+                else:
+                    self._update(self._opt_full, T, K)
+                    out.append(self._off.render(ids=False, want_rgb=True, want_depth=False)[0])
+        return out
 
     def render_view(
         self,
@@ -597,11 +617,15 @@ class SimCameraRig:
         progress: bool = False,
         metadata: dict[str, Any] | None = None,
         indices: Sequence[int] | None = None,
+        reference: bool = False,
     ) -> Capture:
         """Render every view of the layout (or of ``poses`` (V, 4, 4), OpenCV camera-to-world) into a Capture.
 
         ``n_views`` overrides the config's view count; ``indices`` renders only those views of the layout
         (names and sensor-depth noise keep the layout index); ``progress`` shows a tqdm bar on stderr.
+        ``reference``: also render each view's reference (``CameraView.reference_rgb``): the same camera over the
+        empty workspace (objects hidden: :func:`sim.reference_pass.objects_hidden`), by the same renderer with
+        independent render noise, as a robot's pass before the objects are placed.
         """
         Ts = self.poses(n_views) if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
         K = self.K()
@@ -616,11 +640,16 @@ class SimCameraRig:
         n_cap = self._n_captures
         self._n_captures += 1
         views = [self.render_view(Ts[i], K, channels, name=f"view_{i:03d}", noise_key=(n_cap, i)) for i in it]
+        if reference:
+            refs = self.reference_rgb(Ts[sel], K)
+            views = [v.with_(reference_rgb=r) for v, r in zip(views, refs, strict=True)]
         meta = {
             "renderer": f"mujoco {mujoco.__version__} offscreen" if self.rgb_renderer is None
             else _renderer_label(self.rgb_renderer),
             "depth_model": self.depth_model.record(),
             "layout_indices": sel,
+            **({"reference": "simulated reference pass (objects hidden, same renderer, independent noise)"}
+               if reference else {}),
             **({"mask_source": "simulator (ground truth)"} if "mask" in (channels or self.config.channels) else {}),
             "camera_rig": {
                 "radius": self.config.radius, "centre": list(self.config.centre),

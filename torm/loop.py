@@ -46,7 +46,7 @@ DEPTH_CHANNELS = ("sensor_depth", "mask")
 #: masks and the exact depth (Table II depth metrics), no RGB, which is the costly pass with ``renderer=pbr``.
 MASK_CHANNELS = ("depth", "mask")
 #: Segmenters that read the RGB images (every other one works from the simulator's masks).
-IMAGE_SEGMENTERS = ("learned", "grounded_sam")
+IMAGE_SEGMENTERS = ("learned", "grounded_sam", "difference")
 #: Sources of the table height the loop plans with (``TrialConfig.table``).
 TABLE_SOURCES = ("declared", "capture")
 #: Two reconstructions within this horizontal distance (m) are the same object for re-perception.

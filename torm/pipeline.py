@@ -89,6 +89,8 @@ class CaptureSettings:
         depth_model: how the sensor depth is simulated (one of :data:`DEPTH_MODELS`).
         depth_options: overrides of the depth model's config fields (e.g. ``{"correlation_px": 0}`` for
             ``statistical``; see ``sim/depth/README.md``); unknown keys are rejected when the backend is built.
+        reference: also capture each view over the empty workspace (a reference pass, ``CameraView.reference_rgb``)
+            for reference-mode segmenters; in simulation the objects are hidden for that pass.
     """
 
     n_views: int = 50
@@ -97,6 +99,7 @@ class CaptureSettings:
     depth_model: str = "ideal"
     depth_options: dict[str, Any] = field(default_factory=dict)
     pbr: PbrSettings = field(default_factory=PbrSettings)
+    reference: bool = False
 
     def __post_init__(self) -> None:
         if self.n_views < 1 or not self.scale > 0:
@@ -141,8 +144,9 @@ class WorldSettings:
 
 @dataclass(frozen=True)
 class SegmentationSettings:
-    """Silhouette source: ``gt`` (simulator masks), ``noisy`` (error model preset), ``grounded_sam`` or
-    ``learned`` (the shipped U-Net; reads the rendered RGB).
+    """Silhouette source: ``gt`` (simulator masks), ``noisy`` (error model preset), ``grounded_sam``,
+    ``learned`` (the shipped U-Net; reads the rendered RGB) or ``difference`` (scene minus the reference pass; needs
+    ``capture.reference``). A reference-mode ``learned`` model (``options.model``) also needs ``capture.reference``.
 
     ``options`` is passed to the segmenter's own config (e.g. ONNX paths for ``grounded_sam``, thresholds or
     another model file for ``learned``).
@@ -153,7 +157,7 @@ class SegmentationSettings:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        valid = ("gt", "noisy", "grounded_sam", "learned")
+        valid = ("gt", "noisy", "grounded_sam", "learned", "difference")
         if self.segmenter not in valid:
             raise UnknownNameError("segmenter", self.segmenter, valid)
 
@@ -216,6 +220,9 @@ class TrialConfig:
         if lo.shape != (2,) or not np.all(hi > lo):
             raise ConfigError(f"place_area must be ((x_min, y_min), (x_max, y_max)) with max > min, got "
                               f"{self.place_area}")
+        if self.segmentation.segmenter == "difference" and not self.capture.reference:
+            raise ConfigError("segmentation.segmenter=difference reads each view's reference pass: also set "
+                              "capture.reference=true")
 
 
 def versions() -> dict[str, str]:
@@ -252,6 +259,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         "backend": config.backend,
         "table": config.table,
     }
+    if config.capture.reference:
+        ctx["reference"] = True
     if torm_method and seg.segmenter == "learned":
         from torm.segmentation.learned import model_fingerprint
 
@@ -272,8 +281,14 @@ def make_backend(config: TrialConfig) -> Any:
         world = build_world(config.scenario, config.seed, robot=config.robot, realism=realism)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
         depth = make_depth_model(config.capture.depth_model, config.capture.depth_options)
-        return SimBackend(world, camera_config=cam, realism=realism, renderer=config.capture.renderer,
-                          render_settings=config.capture.pbr, depth_model=depth, depth_seed=config.seed)
+        backend = SimBackend(world, camera_config=cam, realism=realism, renderer=config.capture.renderer,
+                             render_settings=config.capture.pbr, depth_model=depth, depth_seed=config.seed)
+        backend.reference = bool(config.capture.reference)
+        return backend
+    if config.capture.reference:
+        raise ConfigError("capture.reference with the real backend: record the reference pass over the empty "
+                          "workspace with `torm capture` and segment with `torm segment --reference DIR`; the live "
+                          "loop does not fly it yet")
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)

@@ -39,6 +39,8 @@ class CameraView:
         sensor_depth: (H, W) float32 z-depth as a real depth camera reports it (sees through glass).
         mask: (H, W) int32 instance mask; 0 background, k > 0 = object k.
         name: free-form label (e.g. the file stem).
+        reference_rgb: (H, W, 3) uint8 the same camera's view of the empty workspace (a reference pass flown before
+            the objects were placed; ``reference`` mode of the learned segmenter), or None.
     """
 
     K: np.ndarray
@@ -48,6 +50,7 @@ class CameraView:
     sensor_depth: np.ndarray | None = None
     mask: np.ndarray | None = None
     name: str = ""
+    reference_rgb: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=np.float64)
@@ -68,6 +71,11 @@ class CameraView:
             raise CaptureError(
                 f"view {self.name!r}: rgb must be uint8 (H, W, 3), got {self.rgb.dtype} {self.rgb.shape}"
             )
+        _check_image(f"view {self.name!r} reference_rgb", self.reference_rgb, hw, 3)
+        ref = self.reference_rgb
+        if ref is not None and (ref.shape[2] != 3 or ref.dtype != np.uint8):
+            raise CaptureError(f"view {self.name!r}: reference_rgb must be uint8 (H, W, 3), got "
+                               f"{self.reference_rgb.dtype} {self.reference_rgb.shape}")
         for nm in ("depth", "sensor_depth", "mask"):
             _check_image(f"view {self.name!r} {nm}", getattr(self, nm), hw, 2)
         if self.mask is not None and self.mask.dtype != np.int32:

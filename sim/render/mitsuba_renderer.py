@@ -237,7 +237,7 @@ class MitsubaRenderer:
     # ------------------------------------------------------------------------------------------- render
     def render(self, cameras: Sequence[RenderCamera], *, rgb: bool = True, instance: bool = True,
                extra_emitters: Mapping[str, dict] | None = None, env_scale: float = 1.0, area_scale: float = 1.0,
-               exposure: float | None = None) -> list[RenderedView]:
+               exposure: float | None = None, noise_seed: int = 0) -> list[RenderedView]:
         """Render ``cameras`` of the world's current state.
 
         Args:
@@ -247,6 +247,8 @@ class MitsubaRenderer:
                 ...}}``); keys must not clash with the scene's.
             env_scale, area_scale: multiply the environment / area-light radiance (0 removes them).
             exposure: None = ``settings.exposure``; 0 = auto; > 0 = fixed linear gain.
+            noise_seed: mixed into each view's sampler seed: another value gives independent render noise for the
+                same view (a reference pass over the empty workspace uses 1).
 
         Cached views (same inputs, see :mod:`sim.render.cache`) are loaded instead of rendered.
         """
@@ -260,6 +262,8 @@ class MitsubaRenderer:
                 try:
                     inputs = self.cache_inputs(cam, desc_digest, extra_emitters=extra_emitters, env_scale=env_scale,
                                                area_scale=area_scale, exposure=expo)
+                    if noise_seed:
+                        inputs["noise_seed"] = int(noise_seed)
                     key = cache_key(inputs)
                 except TypeError as exc:
                     log.info("render cache off for this call: %s", exc)
@@ -271,7 +275,8 @@ class MitsubaRenderer:
                                          "render_s": time.perf_counter() - t0}))
                 continue
             mi_scene, pbr = self.scene(extra_emitters=extra_emitters, env_scale=env_scale, area_scale=area_scale)
-            seed = zlib.crc32(np.ascontiguousarray(cam.T_world_cam).tobytes()) ^ int(pbr.description.layout_seed)
+            seed = (zlib.crc32(np.ascontiguousarray(cam.T_world_cam).tobytes()) ^ int(pbr.description.layout_seed)
+                    ^ (int(noise_seed) * 0x9E3779B1))
             lin = render_linear(mi_scene, cam, self.settings, seed)
             img = denoise(tone_map(lin, expo), self.settings.denoise, self.settings.denoise_strength)
             if img.shape[:2] != (cam.height, cam.width):

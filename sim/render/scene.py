@@ -129,11 +129,12 @@ def _geom_rgb(model: mujoco.MjModel, g: int) -> tuple[float, float, float]:
     return (float(lin[0]), float(lin[1]), float(lin[2]))
 
 
-def describe_world(world: Any, layout_seed: int | None = None, centre: tuple[float, float, float] = (0.55, 0.0, 0.0)
-                   ) -> SceneDescription:
+def describe_world(world: Any, layout_seed: int | None = None, centre: tuple[float, float, float] = (0.55, 0.0, 0.0),
+                   groups: tuple[int, ...] = RENDERED_GROUPS) -> SceneDescription:
     """The rendered geoms of ``world`` (``model``, ``data``, ``geom_to_instance``) at its current state.
 
-    ``layout_seed`` defaults to ``world.seed``; ``centre`` (m) is the workspace centre the lights face.
+    ``layout_seed`` defaults to ``world.seed``; ``centre`` (m) is the workspace centre the lights face; ``groups``
+    the geom groups described (default: those rendered).
     Geom types other than box, sphere, plane and mesh (cylinder, capsule, ellipsoid) are triangulated.
     """
     model, data = world.model, world.data
@@ -143,7 +144,7 @@ def describe_world(world: Any, layout_seed: int | None = None, centre: tuple[flo
     seed = int(layout_seed if layout_seed is not None else (getattr(world, "seed", 0) or 0))
     entries = []
     for g in range(model.ngeom):
-        if int(model.geom_group[g]) not in RENDERED_GROUPS or model.geom_rgba[g][3] == 0:
+        if int(model.geom_group[g]) not in groups or model.geom_rgba[g][3] == 0:
             continue
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}"
         T = np.eye(4)

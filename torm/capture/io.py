@@ -104,6 +104,10 @@ def save_capture(capture: Capture, folder: str | Path) -> Path:
             (root / "images").mkdir(exist_ok=True)
             frame["file_path"] = f"images/{stem}.png"
             _imwrite(root / frame["file_path"], cv2.cvtColor(v.rgb, cv2.COLOR_RGB2BGR))
+        if v.reference_rgb is not None:  # the empty workspace through the same camera (reference pass)
+            (root / "reference").mkdir(exist_ok=True)
+            frame["reference_file_path"] = f"reference/{stem}.png"
+            _imwrite(root / frame["reference_file_path"], cv2.cvtColor(v.reference_rgb, cv2.COLOR_RGB2BGR))
         frame["transform_matrix"] = cv_to_gl(v.T_world_cam).tolist()
         if v.name:
             frame["name"] = v.name
@@ -397,10 +401,17 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
                         f"depth {dpath} is {d.shape[1]}x{d.shape[0]} but image {size_src} is {img_hw[1]}x{img_hw[0]}"
                     )
                 depths[name] = d
+        ref = None
+        if frame.get("reference_file_path"):
+            ref, _ = _read_image(_resolve_image(root, str(frame["reference_file_path"]), tpath))
+            if ref.shape[:2] != img_hw:
+                raise CaptureError(f"{where}: reference image {frame['reference_file_path']} is {ref.shape[1]}x"
+                                   f"{ref.shape[0]} but the frame is {img_hw[1]}x{img_hw[0]}; record the reference "
+                                   "pass with the same camera settings")
         K = _frame_K(doc, frame, img_hw[1], img_hw[0], where)
         T = _frame_pose(frame, where)
         try:
-            out.append(CameraView(K=K, T_world_cam=T, rgb=rgb, mask=mask, name=label, **depths))
+            out.append(CameraView(K=K, T_world_cam=T, rgb=rgb, mask=mask, name=label, reference_rgb=ref, **depths))
         except CaptureError as exc:
             raise CaptureError(f"{where}: {exc}") from exc
 

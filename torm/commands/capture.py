@@ -50,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--renderer", choices=("mujoco", "pbr"), default="mujoco",
                    help="who renders RGB: MuJoCo's rasteriser or the Mitsuba path tracer (depth and masks: MuJoCo)")
     p.add_argument("--spp", type=int, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
+    p.add_argument("--reference", action="store_true",
+                   help="also render each view over the empty workspace (reference/; a robot's reference pass)")
     add_overrides(p, example="radius=0.6", target="capture")
     p.set_defaults(func=run)
 
@@ -89,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     with SimCameraRig.from_world(world, rig_cfg, rgb_renderer=rgb_renderer,
                                  depth_model=make_depth_model(args.depth_model), depth_seed=args.seed) as rig:
         t0 = time.perf_counter()
-        cap = rig.capture(progress=args.progress)
+        cap = rig.capture(progress=args.progress, reference=args.reference)
         timings["render_s"] = time.perf_counter() - t0
         occ = None
         if not args.no_occlusion:

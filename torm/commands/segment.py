@@ -8,6 +8,7 @@ Examples::
         --prompt "clear glass. transparent object." --out runs/rw3_s0_gsam
     torm segment runs/rw3_s0 --segmenter gt --check-views drop
     torm segment runs/rw3_s0 --segmenter learned --set fg_threshold=0.5 --out runs/rw3_s0_learned
+    torm segment runs/scene --reference runs/empty --segmenter difference      # scene minus the reference pass
 
 The output folder (default ``CAPTURE_DIR_<segmenter>``) is a full capture (``transforms.json``, images,
 depth) whose ``masks/`` hold the predicted 16-bit instance masks. The input folder is never modified.
@@ -20,6 +21,10 @@ model runs (no downloaded weights needed). ``--config`` is YAML with the segment
 fields at the top level (or under a key named after the segmenter); ``--set key=value`` overrides them
 (``torm config show segment:NAME`` lists a segmenter's keys, e.g. ``segment:noisy``).
 With ``--check-views`` the cross-view consistency checks run and ``drop`` writes only the kept views.
+``--reference DIR``: a capture of the empty workspace recorded along the same camera path (the reference pass);
+each view is paired with the reference view at the same pose (refused beyond 2 mm / 0.5 deg, or from another
+camera or renderer), the ``difference`` segmenter and reference-mode ``learned`` models read it, and after the
+segmentation the static background is compared with it (refused when the table or the light changed).
 Prints a JSON summary (timings, detections per view, quality, flagged views) on stdout.
 """
 
@@ -43,14 +48,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "segment", __doc__, help="extract per-view instance masks of a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
     p.add_argument("--segmenter", default="learned",
-                   help="learned | grounded_sam | gt | noisy (default learned: the shipped model, no downloads; "
-                        "grounded_sam needs your ONNX exports)")
+                   help="learned | grounded_sam | gt | noisy | difference (default learned: the shipped model, no "
+                        "downloads; grounded_sam needs your ONNX exports; difference needs --reference)")
     p.add_argument("--prompt", default=None, help="grounded_sam text prompt, phrases separated by '.'")
     p.add_argument("--preset", default=None, help="noisy: error preset (none, mild, moderate, severe, paper, ...)")
     p.add_argument("--seed", type=seed_arg, default=None, help="noisy: corruption seed")
     p.add_argument("--check-views", choices=("none", "flag", "drop"), default="none",
                    help="cross-view consistency checks: report (flag) or remove (drop) inconsistent views")
     p.add_argument("--out", default=None, help="output capture folder (default CAPTURE_DIR_<segmenter>)")
+    p.add_argument("--reference", default=None, metavar="DIR",
+                   help="capture folder of the empty workspace along the same camera path (reference pass)")
     add_overrides(p, example="overrides.p_missing_view=0.2", target="segment:SEGMENTER")
     p.set_defaults(func=run)
 
@@ -105,8 +112,16 @@ def run(args: argparse.Namespace) -> int:
         raise SegmentationError(f"--out {out} is the input capture; write the segmented capture to another folder")
     check_output_dir(out)  # before the segmentation, not after it
     capture = load_capture(args.capture_dir)
+    if args.reference:
+        from torm.segmentation.reference import attach_reference
+
+        capture = attach_reference(capture, load_capture(args.reference))
     segmenter = make_segmenter(name, config)
     result = segmenter.segment(capture)
+    if any(v.reference_rgb is not None for v in capture.views):
+        from torm.segmentation.reference import check_background
+
+        result.info["reference_background_grey"] = check_background(capture, result.masks_vxhxw)
     from torm.segmentation.base import MASK_SOURCE_KEY, masks_are_ground_truth
 
     gt = capture.masks() if masks_are_ground_truth(capture) else None

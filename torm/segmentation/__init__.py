@@ -4,7 +4,9 @@ Segmenters (``make_segmenter(name, config)``):
     ``gt``            the simulator's instance masks stored in the capture;
     ``noisy``         those masks corrupted by a seeded error model (presets none/mild/moderate/severe/paper);
     ``grounded_sam``  Grounding DINO + SAM on onnxruntime from user-supplied ONNX files;
-    ``learned``       the shipped U-Net (foreground + boundary) trained here on rendered scenes, onnxruntime.
+    ``learned``       the shipped U-Net (foreground + boundary) trained here on rendered scenes, onnxruntime
+                      (a reference-mode model also reads each view's empty-workspace reference view);
+    ``difference``    the plain scene-minus-reference difference (needs reference views; a baseline).
 
 Each returns a :class:`SegmentationResult` ((V, H, W) int32 masks, detections, timings, quality vs GT
 when available); ``result.apply(capture)`` attaches the masks. :mod:`torm.segmentation.multiview` turns
@@ -24,7 +26,7 @@ from torm.segmentation.noise import PRESETS, NoiseConfig, NoisyConfig, NoisySegm
 from torm.segmentation.quality import mask_quality
 
 #: registry names; grounded_sam and learned are imported lazily (onnxruntime).
-SEGMENTERS = ("gt", "noisy", "grounded_sam", "learned")
+SEGMENTERS = ("gt", "noisy", "grounded_sam", "learned", "difference")
 
 
 def segmenter_config_class(name: str) -> type:
@@ -41,6 +43,10 @@ def segmenter_config_class(name: str) -> type:
         from torm.segmentation.learned import LearnedConfig
 
         return LearnedConfig
+    if name == "difference":
+        from torm.segmentation.reference import DifferenceConfig
+
+        return DifferenceConfig
     raise UnknownNameError("segmenter", name, SEGMENTERS)
 
 
@@ -63,6 +69,10 @@ def make_segmenter(name: str, config: Any = None) -> Segmenter:
         from torm.segmentation.learned import LearnedSegmenter
 
         return LearnedSegmenter(config)
+    if name == "difference":
+        from torm.segmentation.reference import DifferenceSegmenter
+
+        return DifferenceSegmenter(config)
     from torm.segmentation.grounded_sam import GroundedSAMSegmenter
 
     return GroundedSAMSegmenter(config)

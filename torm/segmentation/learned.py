@@ -44,7 +44,9 @@ log = logging.getLogger(__name__)
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "learned_seg.onnx"
-INPUTS = (TensorSpec("image", ("image",), (1, 3, None, None)),)
+INPUTS = (TensorSpec("image", ("image",), (1, None, None, None)),)
+#: input channel counts a model file may have: RGB, or RGB + the reference view's RGB (reference mode)
+IN_CHANNELS = (3, 6)
 OUTPUTS = (TensorSpec("logits", ("logits",), (1, None, None, None)),)
 #: output channel counts a model file may have (without / with the centre head)
 CHANNELS = (2, 5)
@@ -148,6 +150,12 @@ class LearnedSegmenter(Segmenter):
                                  f"signature is (1, 2, H, W) or, with the centre head, (1, 5, H, W)")
         #: number of output maps (2, or 5 with the centre head)
         self.channels = int(ch)
+        cin = self.session.session.get_inputs()[0].shape[1]
+        if cin not in IN_CHANNELS:
+            raise ModelFileError(f"{c.model_path}: input 'image' has {cin} channels; the learned segmenter reads "
+                                 "(1, 3, H, W) RGB or, in reference mode, (1, 6, H, W) scene + reference RGB")
+        #: 3 (RGB) or 6 (reference mode: each view's RGB and its empty-workspace reference view)
+        self.in_channels = int(cin)
         card = c.model_path.with_suffix(".json")
         self.card: dict[str, Any] = json.loads(card.read_text()) if card.is_file() else {}
         post = self.card.get("postprocess", {})
@@ -168,14 +176,31 @@ class LearnedSegmenter(Segmenter):
         m = self.maps(rgb, flip_tta)
         return m[0], m[1]
 
-    def maps(self, rgb: np.ndarray, flip_tta: bool | None = None) -> np.ndarray:
+    @property
+    def needs_reference(self) -> bool:
+        """True for a reference-mode model: every view needs its empty-workspace view (``reference_rgb``)."""
+        return self.in_channels == 6
+
+    def maps(self, rgb: np.ndarray, flip_tta: bool | None = None, reference: np.ndarray | None = None) -> np.ndarray:
         """(C, H, W) float32 maps of one (H, W, 3) uint8 RGB image at its own size: foreground and boundary
         probabilities, and for a centre-head model the centre probability and the offsets (dy, dx) to the
         instance's centre in px of the image. ``flip_tta`` (None = :attr:`postprocess`): the mean of the view's and
-        its mirror image's maps (the mirror's dx negated)."""
+        its mirror image's maps (the mirror's dx negated). ``reference``: the view of the empty workspace, (H, W, 3)
+        uint8, required by (and only read by) a reference-mode model."""
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise CaptureError(f"the learned segmenter needs (H, W, 3) uint8 RGB images, got {rgb.shape} {rgb.dtype}")
+        if self.needs_reference:
+            if reference is None:
+                raise CaptureError(f"{self.config.model_path.name} is a reference-mode model: each view needs its view "
+                                   "of the empty workspace (a reference pass: --set capture.reference=true in "
+                                   "simulation, torm segment --reference DIR for recorded frames), or use a model "
+                                   "without reference (learned_seg.onnx)")
+            reference = np.asarray(reference)
+            if reference.shape != rgb.shape or reference.dtype != np.uint8:
+                raise CaptureError(f"reference view {reference.shape} {reference.dtype} must match its view "
+                                   f"{rgb.shape} uint8")
+            rgb = np.concatenate([rgb, reference], axis=2)
         m = self._maps(rgb)
         if flip_tta if flip_tta is not None else self.postprocess["flip_tta"]:
             f = self._maps(np.ascontiguousarray(rgb[:, ::-1]))[:, :, ::-1]
@@ -188,10 +213,15 @@ class LearnedSegmenter(Segmenter):
         h, w = rgb.shape[:2]
         tw = self.config.input_width or w
         th = max(int(round(h * tw / w)), 1)
-        x = rgb if (th, tw) == (h, w) else cv2.resize(rgb, (tw, th), interpolation=cv2.INTER_AREA)
         ph, pw = -th % STRIDE, -tw % STRIDE
-        if ph or pw:
-            x = cv2.copyMakeBorder(x, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
+        parts = []
+        for k in range(0, rgb.shape[2], 3):  # RGB (and the reference's RGB): OpenCV works on 3-channel images
+            x = np.ascontiguousarray(rgb[..., k:k + 3])
+            x = x if (th, tw) == (h, w) else cv2.resize(x, (tw, th), interpolation=cv2.INTER_AREA)
+            if ph or pw:
+                x = cv2.copyMakeBorder(x, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
+            parts.append(x)
+        x = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)
         inp = x.astype(np.float32).transpose(2, 0, 1)[None]
         logits = self.session.run({"image": inp}, ("logits",))[0][0, :, :th, :tw].astype(np.float32)
         out = _sigmoid(logits)
@@ -202,10 +232,12 @@ class LearnedSegmenter(Segmenter):
             out = np.stack([cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in out])
         return out
 
-    def segment_image(self, rgb: np.ndarray) -> tuple[np.ndarray, tuple[Detection, ...]]:
-        """(H, W) int32 instance mask and one detection (box, mean foreground probability) per instance."""
+    def segment_image(self, rgb: np.ndarray, reference: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, tuple[Detection, ...]]:
+        """(H, W) int32 instance mask and one detection (box, mean foreground probability) per instance.
+        ``reference``: the empty workspace's view (reference-mode models)."""
         c, pp = self.config, self.postprocess
-        maps = self.maps(rgb)
+        maps = self.maps(rgb, reference=reference)
         lin = rgb.shape[1] / (c.input_width or rgb.shape[1])  # image px per network input px
         mask, scores = instances_from_maps(
             maps, pp["grouping"], pp["fg_threshold"], pp["boundary_threshold"],
@@ -245,7 +277,7 @@ class LearnedSegmenter(Segmenter):
         for i, view in enumerate(capture.views):
             if view.rgb is None:
                 raise CaptureError(f"view {i} ({view.name!r}) has no RGB image; the learned segmenter reads pixels")
-            m, d = self.segment_image(view.rgb)
+            m, d = self.segment_image(view.rgb, view.reference_rgb)
             masks.append(m)
             dets.append(d)
         out = np.stack(masks)

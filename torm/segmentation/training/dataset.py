@@ -248,10 +248,46 @@ def shard_path(root: Path, split: str, shard: int) -> Path:
     return Path(root) / split / f"shard_{shard:05d}.npz"
 
 
-def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Path:
-    """Render shard ``shard`` of ``split`` into ``root`` unless it exists; returns its path."""
+def _build_scene(recipe: DataRecipe, split: str, shard: int, j: int) -> tuple[int, np.random.Generator, Any, tuple,
+                                                                              str, str | None]:
+    """(seed, rng after the draws, world or None, objects, spacing, fixture) of scene ``j`` of a shard: a pure
+    function of its arguments (the reference pass rebuilds the same scene)."""
     from sim.scenes.scenario import Scenario
     from sim.world import build_world
+
+    seed = scene_seed(recipe, split, shard, j)
+    rng = np.random.default_rng(seed)
+    world, objs, spacing, fixture = None, (), "moderate", None
+    for _attempt in range(5):
+        fixture, n_fix = None, 0
+        if split in FIXTURE_SPLITS:
+            objs, fixture, n_fix = sample_fixture_scene(recipe, rng)
+        else:
+            objs = sample_objects(split, recipe, rng)
+        spacing = "dense" if rng.random() < recipe.dense_fraction else "moderate"
+        try:
+            world = build_world(Scenario(name=f"{split}_{shard}_{j}", objects=objs, spacing=spacing,
+                                         fixture=fixture, fixture_objects=n_fix), seed, robot=None)
+            break
+        except SceneError as exc:
+            log.info("scene %d/%d/%d rejected (%s); drawing another object set", shard, j, _attempt, exc)
+    return seed, rng, world, tuple(objs), spacing, fixture
+
+
+def _cameras(recipe: DataRecipe, split: str, world: Any, rng: np.random.Generator
+             ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """(T_world_cam (V, 4, 4), K (V, 3, 3), width, height) of a scene's views."""
+    if split in RIG_SPLITS:  # full frames of the rig layout
+        Ts = rig_poses(recipe.test_views)
+        return Ts, np.repeat(recipe.K()[None], len(Ts), axis=0), recipe.full_width, recipe.full_height
+    Ts = random_poses(recipe.views_per_scene, recipe, rng)  # crops around the objects of random cameras
+    centres = np.array([world.object_pose(o.instance_id)[:3, 3] for o in world.objects])
+    K_v = np.stack([recipe.crop_K(T, centres, rng) for T in Ts])
+    return Ts, K_v, recipe.width, recipe.height
+
+
+def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Path:
+    """Render shard ``shard`` of ``split`` into ``root`` unless it exists; returns its path."""
     from torm.segmentation.training.render import SceneLook, render_scene
 
     path = shard_path(root, split, shard)
@@ -261,33 +297,10 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
     renderer = shard_renderer(recipe, split, shard)
     rgbs, masks, poses, Ks, scene_idx, meta = [], [], [], [], [], []
     for j in range(recipe.scenes_per_shard):
-        seed = scene_seed(recipe, split, shard, j)
-        rng = np.random.default_rng(seed)
-        world = None
-        for _attempt in range(5):
-            fixture, n_fix = None, 0
-            if split in FIXTURE_SPLITS:
-                objs, fixture, n_fix = sample_fixture_scene(recipe, rng)
-            else:
-                objs = sample_objects(split, recipe, rng)
-            spacing = "dense" if rng.random() < recipe.dense_fraction else "moderate"
-            try:
-                world = build_world(Scenario(name=f"{split}_{shard}_{j}", objects=objs, spacing=spacing,
-                                             fixture=fixture, fixture_objects=n_fix), seed, robot=None)
-                break
-            except SceneError as exc:
-                log.info("scene %d/%d/%d rejected (%s); drawing another object set", shard, j, _attempt, exc)
+        seed, rng, world, objs, spacing, fixture = _build_scene(recipe, split, shard, j)
         if world is None:
             continue
-        if split in RIG_SPLITS:  # full frames of the rig layout
-            Ts = rig_poses(recipe.test_views)
-            K_v = np.repeat(recipe.K()[None], len(Ts), axis=0)
-            w, h = recipe.full_width, recipe.full_height
-        else:  # crops around the objects of random cameras
-            Ts = random_poses(recipe.views_per_scene, recipe, rng)
-            centres = np.array([world.object_pose(o.instance_id)[:3, 3] for o in world.objects])
-            K_v = np.stack([recipe.crop_K(T, centres, rng) for T in Ts])
-            w, h = recipe.width, recipe.height
+        Ts, K_v, w, h = _cameras(recipe, split, world, rng)
         look = SceneLook.draw(recipe, rng) if renderer != "mujoco" else SceneLook()
         rgb, mask, look_info = render_scene(renderer, world, Ts, K_v, w, h, rng, recipe.spp, look)
         if not recipe.label_opaque:  # only glass is labelled: opaque objects become background
@@ -310,21 +323,68 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
     return path
 
 
-def _render_job(args: tuple[DataRecipe, str, int, str]) -> str:
-    """One shard in a worker process (single-threaded renders; one process per core)."""
+def reference_path(root: Path, split: str, shard: int) -> Path:
+    """Where the reference pass of a shard lives: ``<split>/shard_00000.ref.npz`` beside it."""
+    return shard_path(root, split, shard).with_suffix(".ref.npz")
+
+
+def generate_reference_shard(recipe: DataRecipe, split: str, shard: int, root: Path,
+                             drop_distractors: float = 0.3) -> Path:
+    """The empty-workspace reference pass of an existing shard: the same scenes rebuilt from their seeds, the same
+    cameras, renderer and look, the objects hidden, independent render noise; each distractor is also removed with
+    probability ``drop_distractors`` (things that arrive with the objects). Writes ``reference_rgb`` (N, H, W, 3)
+    uint8 to :func:`reference_path`; raises when a rebuilt scene's cameras differ from the shard's."""
+    from sim.reference_pass import objects_hidden
+    from torm.segmentation.training.render import SceneLook, render_scene
+
+    path = reference_path(root, split, shard)
+    if path.exists():
+        return path
+    src = shard_path(root, split, shard)
+    if not src.exists():
+        raise ConfigError(f"{src} does not exist; render the shard before its reference pass")
+    z = np.load(src)
+    renderer = shard_renderer(recipe, split, shard)
+    refs, poses = [], []
+    for j in range(recipe.scenes_per_shard):
+        seed, rng, world, _objs, _spacing, _fixture = _build_scene(recipe, split, shard, j)
+        if world is None:
+            continue
+        Ts, K_v, w, h = _cameras(recipe, split, world, rng)
+        look = SceneLook.draw(recipe, rng) if renderer != "mujoco" else SceneLook()
+        look = dataclasses.replace(look, reference=True, drop_distractors=drop_distractors)
+        with objects_hidden(world):
+            rgb, _mask, _info = render_scene(renderer, world, Ts, K_v, w, h, rng, recipe.spp, look)
+        refs.append(rgb)
+        poses.append(Ts)
+    T = np.concatenate(poses)
+    if T.shape != z["T_world_cam"].shape or not np.allclose(T, z["T_world_cam"], atol=1e-9):
+        raise ConfigError(f"{src}: the rebuilt scenes' cameras differ from the shard's (another code version or "
+                          "recipe?); re-render the shard")
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, reference_rgb=np.concatenate(refs))
+    os.replace(tmp, path)
+    return path
+
+
+def _render_job(args: tuple) -> str:
+    """One shard (or, with a fifth element True, its reference pass) in a worker process (single-threaded renders;
+    one process per core)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    recipe, split, shard, root = args
+    recipe, split, shard, root = args[:4]
+    if len(args) > 4 and args[4]:
+        return str(generate_reference_shard(recipe, split, shard, Path(root)))
     return str(generate_shard(recipe, split, shard, Path(root)))
 
 
 def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, progress: bool = True,
-             workers: int = 1) -> list[Path]:
+             workers: int = 1, references: bool = False) -> list[Path]:
     """Render every missing shard of ``splits`` (resumable; existing shards are kept).
 
     ``workers`` > 1 renders shards in that many spawned processes (one core each). Shard contents depend only on
     the recipe and the shard index (:func:`scene_seed`), so the dataset is the same for any ``workers``.
+    ``references``: then render each shard's missing reference pass (:func:`generate_reference_shard`).
     """
-    from tqdm import tqdm
 
     if workers < 1:
         raise ConfigError(f"generate: workers = {workers} must be >= 1")
@@ -341,7 +401,19 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
         mine["shards"] = {s: max(int(old.get(s, 0)), int(mine["shards"].get(s, 0))) for s in {*old, *mine["shards"]}}
     rec_path.write_text(json.dumps(mine, indent=2, sort_keys=True))
     jobs = [(s, i) for s in splits for i in range(recipe.shards.get(s, 0))]
-    todo = [(s, i) for s, i in jobs if not shard_path(root, s, i).exists()]
+    _run_jobs(recipe, root, [(s, i) for s, i in jobs if not shard_path(root, s, i).exists()], workers, False,
+              progress)
+    if references:
+        _run_jobs(recipe, root, [(s, i) for s, i in jobs if not reference_path(root, s, i).exists()], workers, True,
+                  progress)
+    return [shard_path(root, s, i) for s, i in jobs]
+
+
+def _run_jobs(recipe: DataRecipe, root: Path, todo: list[tuple[str, int]], workers: int, reference: bool,
+              progress: bool) -> None:
+    from tqdm import tqdm
+
+    desc = "render reference passes" if reference else "render shards"
     variants = {shard_renderer(recipe, s, i) for s, i in todo} & {"pbr", "pbr_scalar"}
     if (workers > 1 and len(todo) > 1) or len(variants) > 1:
         import multiprocessing as mp
@@ -349,27 +421,33 @@ def generate(recipe: DataRecipe, root: Path, splits: tuple[str, ...] = SPLITS, p
 
         # a fresh process per shard when Mitsuba variants mix (the variant is fixed per process)
         per_child = {"max_tasks_per_child": 1} if len(variants) > 1 else {}
-        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=mp.get_context("spawn"), **per_child) as ex:
-            done = ex.map(_render_job, [(recipe, s, i, str(root)) for s, i in todo])
-            for _ in tqdm(done, total=len(todo), desc="render shards", unit="shard", disable=not progress):
+        with ProcessPoolExecutor(max(1, min(workers, len(todo))), mp_context=mp.get_context("spawn"),
+                                 **per_child) as ex:
+            done = ex.map(_render_job, [(recipe, s, i, str(root), reference) for s, i in todo])
+            for _ in tqdm(done, total=len(todo), desc=desc, unit="shard", disable=not progress):
                 pass
-        return [shard_path(root, s, i) for s, i in jobs]
-    out = []
-    for s, i in tqdm(jobs, desc="render shards", unit="shard", disable=not progress):
-        out.append(generate_shard(recipe, s, i, root))
-    return out
+        return
+    for s, i in tqdm(todo, desc=desc, unit="shard", disable=not progress):
+        (generate_reference_shard if reference else generate_shard)(recipe, s, i, root)
 
 
-def load_split(root: Path, split: str) -> dict[str, Any]:
-    """All shards of ``split`` concatenated: rgb, mask, T_world_cam, scene (global index), meta list."""
+def load_split(root: Path, split: str, references: bool = False) -> dict[str, Any]:
+    """All shards of ``split`` concatenated: rgb, mask, T_world_cam, scene (global index), meta list; with
+    ``references`` also ``reference`` (N, H, W, 3) uint8, the empty-workspace views (a named error when a shard's
+    reference pass is missing)."""
     files = sorted((Path(root) / split).glob("shard_*.npz"))
-    files = [f for f in files if not f.name.endswith(".tmp.npz")]
+    files = [f for f in files if not f.name.endswith((".tmp.npz", ".ref.npz"))]
     if not files:
         raise ConfigError(f"no shards of split {split!r} under {root}; generate them first (torm train-segmenter)")
-    rgb, mask, T, Ks, scene, meta = [], [], [], [], [], []
+    rgb, mask, T, Ks, scene, meta, refs = [], [], [], [], [], [], []
     offset = 0
     for f in files:
         z = np.load(f)
+        if references:
+            rp = f.with_suffix(".ref.npz")
+            if not rp.exists():
+                raise ConfigError(f"{f} has no reference pass ({rp.name}); render it (train.reference renders them)")
+            refs.append(np.load(rp)["reference_rgb"])
         rgb.append(z["rgb"])
         mask.append(z["mask"])
         T.append(z["T_world_cam"])
@@ -379,4 +457,5 @@ def load_split(root: Path, split: str) -> dict[str, Any]:
         meta += [m[k] for k in range(len(m))]
         offset += len(m)
     return {"rgb": np.concatenate(rgb), "mask": np.concatenate(mask), "T_world_cam": np.concatenate(T),
-            "scene": np.concatenate(scene), "meta": meta, "K": np.concatenate(Ks)}
+            "scene": np.concatenate(scene), "meta": meta, "K": np.concatenate(Ks),
+            **({"reference": np.concatenate(refs)} if references else {})}

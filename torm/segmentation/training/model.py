@@ -4,7 +4,9 @@ optionally an instance-centre heatmap (logit) and the offset to the instance's c
 Encoder: ``len(channels)`` stages of two 3x3 conv + BatchNorm + ReLU, max-pool 2 between stages; decoder:
 bilinear x2 upsampling, concatenation with the encoder stage of the same size, two 3x3 convs. Input height
 and width must be multiples of ``2 ** (len(channels) - 1)`` (16 for the default). The exported wrapper
-(:class:`ExportWrapper`) takes (1, 3, H, W) float32 RGB in [0, 255] and normalises inside the graph.
+(:class:`ExportWrapper`) takes (1, 3, H, W) float32 RGB in [0, 255] and normalises inside the graph; a
+reference-mode network (``in_channels`` 6) takes the scene's RGB then the empty workspace's RGB of the same view,
+(1, 6, H, W).
 """
 
 from __future__ import annotations
@@ -40,11 +42,15 @@ class SegUNet(nn.Module):
     convolution on the last decoder stage.
     """
 
-    def __init__(self, channels: tuple[int, ...] = (12, 24, 32, 48, 64), centre_head: bool = False) -> None:
+    def __init__(self, channels: tuple[int, ...] = (12, 24, 32, 48, 64), centre_head: bool = False,
+                 in_channels: int = 3) -> None:
         super().__init__()
+        if in_channels not in (3, 6):
+            raise ValueError(f"in_channels = {in_channels}; valid: 3 (RGB) or 6 (RGB + reference RGB)")
         self.channels = tuple(channels)
+        self.in_channels = int(in_channels)
         self.down = nn.ModuleList()
-        cin = 3
+        cin = in_channels
         for c in channels:
             self.down.append(_block(cin, c))
             cin = c
@@ -77,19 +83,22 @@ _MEAN_1x3x1x1 = torch.tensor(RGB_MEAN).view(1, 3, 1, 1) * 255.0
 _STD_1x3x1x1 = torch.tensor(RGB_STD).view(1, 3, 1, 1) * 255.0
 
 
-def normalise(rgb255_bx3xhxw: torch.Tensor) -> torch.Tensor:
-    """RGB in [0, 255] (float32) -> ImageNet-normalised input."""
-    return (rgb255_bx3xhxw - _MEAN_1x3x1x1) / _STD_1x3x1x1
+def normalise(rgb255_bxcxhxw: torch.Tensor) -> torch.Tensor:
+    """RGB in [0, 255] (float32; C = 3, or 6 = two RGB images) -> ImageNet-normalised input."""
+    k = rgb255_bxcxhxw.shape[1] // 3
+    return (rgb255_bxcxhxw - _MEAN_1x3x1x1.repeat(1, k, 1, 1)) / _STD_1x3x1x1.repeat(1, k, 1, 1)
 
 
 class ExportWrapper(nn.Module):
-    """What the ONNX file holds: ``image`` (1, 3, H, W) RGB in [0, 255] -> ``logits`` (1, C, H, W), C = 2 or 5."""
+    """What the ONNX file holds: ``image`` (1, 3 or 6, H, W) RGB in [0, 255] -> ``logits`` (1, C, H, W), C = 2 or
+    5."""
 
     def __init__(self, net: SegUNet) -> None:
         super().__init__()
         self.net = net
-        self.register_buffer("mean", _MEAN_1x3x1x1.clone())
-        self.register_buffer("std", _STD_1x3x1x1.clone())
+        k = getattr(net, "in_channels", 3) // 3
+        self.register_buffer("mean", _MEAN_1x3x1x1.repeat(1, k, 1, 1).clone())
+        self.register_buffer("std", _STD_1x3x1x1.repeat(1, k, 1, 1).clone())
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         return self.net((image - self.mean) / self.std)
@@ -103,7 +112,9 @@ def load_onnx_weights(net: SegUNet, path: str | Path) -> SegUNet:
     convolutions, and every BatchNorm becomes the identity plus the folded bias (mean 0, variance 1 - eps,
     scale 1): ``net`` in eval mode computes what the file computes. Fine-tune such a network with its
     BatchNorms kept in eval mode (``TrainConfig.freeze_bn``). A file with a 2-channel head loaded into a
-    centre-head network fills the first two head channels; the centre channels keep their initialisation.
+    centre-head network fills the first two head channels; the centre channels keep their initialisation. An RGB
+    file loaded into a reference-mode network (6 input channels) fills the RGB half of the first convolution and
+    zeroes the reference half: the network starts out computing exactly what the file computes.
     """
     import onnx
     from onnx import numpy_helper
@@ -120,13 +131,19 @@ def load_onnx_weights(net: SegUNet, path: str | Path) -> SegUNet:
     # (weight, bias) of every Conv node but the head's, in graph order
     folded = [(inits[n.input[1]], inits[n.input[2]]) for n in graph.node if n.op_type == "Conv"
               and n.input[1] != "net.head.weight" and len(n.input) == 3]
-    if len(folded) != len(convs) or any(w.shape != tuple(c.weight.shape) for (w, _), c in zip(
-            folded, convs, strict=False)):
+    def fits(w: np.ndarray, conv: nn.Conv2d) -> bool:
+        t = tuple(conv.weight.shape)
+        return w.shape == t or (conv is convs[0] and w.shape[1] == 3 and t[1] == 6 and w.shape[0] == t[0])
+
+    if len(folded) != len(convs) or not all(fits(w, c) for (w, _), c in zip(folded, convs, strict=False)):
         raise ModelFileError(f"{path}: its convolutions {[w.shape for w, _ in folded]} do not match a "
                              f"SegUNet with channels {net.channels}; train.channels must be the file's")
     with torch.no_grad():
         for (w, b), conv, bn in zip(folded, convs, bns, strict=True):
-            conv.weight.copy_(torch.from_numpy(np.array(w)))
+            w = np.array(w)
+            if w.shape[1] != conv.weight.shape[1]:  # RGB weights into a reference-mode first convolution
+                w = np.concatenate([w, np.zeros_like(w)], axis=1)
+            conv.weight.copy_(torch.from_numpy(w))
             bn.running_mean.zero_()
             bn.running_var.fill_(1.0 - bn.eps)
             bn.weight.fill_(1.0)

@@ -40,6 +40,8 @@ class SceneLook:
     env_scale: float = 1.0
     area_scale: float = 1.0
     clutter_seed: int = 0
+    reference: bool = False  # the empty-workspace pass: independent render noise, some distractors removed
+    drop_distractors: float = 0.0  # reference pass: probability that a distractor is not there
 
     @classmethod
     def draw(cls, recipe: Any, rng: np.random.Generator) -> SceneLook:
@@ -133,19 +135,28 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
         if look.n_distractors or look.room:
             import mitsuba as mi
 
+            from sim.reference_pass import HIDDEN_GROUP
             from sim.render.cache import cache_root
-            from sim.render.scene import describe_world
+            from sim.render.scene import RENDERED_GROUPS, describe_world
             from torm.segmentation.training.clutter import clutter_entries
 
-            desc = describe_world(world, centre=r.centre)
+            # hidden objects (a reference pass) still shape the clutter: the same draw as the scene's
+            desc = describe_world(world, centre=r.centre, groups=(*RENDERED_GROUPS, HIDDEN_GROUP))
             extra, drawn = clutter_entries(desc, np.random.default_rng(look.clutter_seed), look.n_distractors,
                                            look.room, mi, cache_root() / "meshes")
+            if look.reference and look.drop_distractors > 0:
+                drop = np.random.default_rng([look.clutter_seed, 7])
+                for k in [k for k in extra if k.startswith("distractor_")]:
+                    if drop.random() < look.drop_distractors:
+                        del extra[k]
             info.update(drawn)
         if not look.plain:
             info.update(env_scale=look.env_scale, area_scale=look.area_scale)
-        views = r.render(cams, rgb=True, instance=extra is not None, extra_emitters=extra, env_scale=look.env_scale,
-                         area_scale=look.area_scale)
+        views = r.render(cams, rgb=True, instance=extra is not None and not look.reference, extra_emitters=extra,
+                         env_scale=look.env_scale, area_scale=look.area_scale, noise_seed=int(look.reference))
         rgb = np.stack([v.rgb for v in views])
+        if look.reference:  # no masks of an empty workspace
+            return rgb, np.zeros(rgb.shape[:3], np.int32), info
         if extra is not None:
             return rgb, np.stack([v.instance for v in views]).astype(np.int32), info
     finally:

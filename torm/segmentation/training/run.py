@@ -45,21 +45,24 @@ class SegTrainingSpec:
                               f"{dict(self.data.shards)}; add data.shards.{self.train.val_split} or select on 'val'")
 
 
-def training_data(recipe: DataRecipe, data_dir: Path) -> dict[str, Any]:
+def training_data(recipe: DataRecipe, data_dir: Path, references: bool = False) -> dict[str, Any]:
     """The ``train`` split, with the extra training splits (``train_library``, ``train_fixtures``) appended when the
     recipe asks for them (rgb, mask and meta; scene indices of appended views shifted past the earlier ones')."""
     import numpy as np
 
     from torm.segmentation.training.dataset import EXTRA_TRAIN_SPLITS
 
-    parts = [load_split(data_dir, "train")]
-    parts += [load_split(data_dir, s) for s in EXTRA_TRAIN_SPLITS if recipe.shards.get(s, 0)]
+    parts = [load_split(data_dir, "train", references)]
+    parts += [load_split(data_dir, s, references) for s in EXTRA_TRAIN_SPLITS if recipe.shards.get(s, 0)]
     if len(parts) == 1:
         return parts[0]
     offsets = np.cumsum([0] + [len(p["meta"]) for p in parts[:-1]])
-    return {"rgb": np.concatenate([p["rgb"] for p in parts]), "mask": np.concatenate([p["mask"] for p in parts]),
-            "scene": np.concatenate([p["scene"] + o for p, o in zip(parts, offsets, strict=True)]),
-            "meta": [m for p in parts for m in p["meta"]]}
+    out = {"rgb": np.concatenate([p["rgb"] for p in parts]), "mask": np.concatenate([p["mask"] for p in parts]),
+           "scene": np.concatenate([p["scene"] + o for p, o in zip(parts, offsets, strict=True)]),
+           "meta": [m for p in parts for m in p["meta"]]}
+    if references:
+        out["reference"] = np.concatenate([p["reference"] for p in parts])
+    return out
 
 
 def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[str, Any]:
@@ -96,18 +99,23 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
 
     torch.set_num_threads(spec.train.threads)
     t0 = time.perf_counter()
-    generate(spec.data, data_dir, progress=progress, workers=workers)
+    ref = spec.train.reference
+    generate(spec.data, data_dir, progress=progress, workers=workers, references=ref)
     t_data = time.perf_counter() - t0
-    tr, va = training_data(spec.data, data_dir), load_split(data_dir, spec.train.val_split)
+    tr = training_data(spec.data, data_dir, ref)
+    va = load_split(data_dir, spec.train.val_split, ref)
     if export_only:
         summary = checkpoint_summary(work_dir, spec.train)
     else:
-        summary = train(spec.train, tr["rgb"], tr["mask"], va["rgb"], va["mask"], work_dir, progress=progress)
+        summary = train(spec.train, tr["rgb"], tr["mask"], va["rgb"], va["mask"], work_dir, progress=progress,
+                        train_ref=tr.get("reference"), val_ref=va.get("reference"))
     net = load_best(work_dir, spec.train)
     export_onnx(net, out_path)
     card: dict[str, Any] = {
         "model": out_path.name,
-        "signature": "image (1, 3, H, W) float32 RGB 0..255, H, W multiples of 16 -> logits (1, "
+        "signature": ("image (1, 6, H, W) float32: the scene's RGB 0..255 then the empty workspace's RGB of the same "
+                      "view" if ref else "image (1, 3, H, W) float32 RGB 0..255")
+                     + ", H, W multiples of 16 -> logits (1, "
                      + ("5, H, W): foreground, boundary band, centre, offset dy, dx (x OFFSET_SCALE px)"
                         if spec.train.centre_head else "2, H, W): foreground, boundary band"),
         "parameters": int(sum(p.numel() for p in net.parameters())),
@@ -131,7 +139,9 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
         pre_card = json.loads(pre.read_text()) if pre.is_file() else {}
         card["pretrained"] = {"init_from": spec.train.init_from, **{k: pre_card.get(k) for k in (
             "train", "data", "dataset", "training", "held_out_metrics")}}
-    if evaluate_after:
+    if ref:
+        card["inputs"] = "scene+reference"
+    if evaluate_after and not ref:  # reference models: benchmarks/segmentation_reference.py
         card["held_out_metrics"] = evaluate_model(out_path, data_dir, spec.train.threads)
     write_card(out_path.with_suffix(".json"), card)
     return card

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
@@ -76,6 +77,9 @@ class TrainConfig:
     # segmenter v4 (training/augment.py); the defaults reproduce v3's augmentation exactly
     zoom_range: tuple[float, float] = (1.0, 1.0)  # magnification s drawn log-uniformly; s > 1 crops and enlarges
     sensor_effects: float = 0.0  # probability scale of the real-camera effects (0 = off, 1 = SENSOR_RANGES' own)
+    # reference mode: the network also reads the empty workspace's view (6 input channels; shards' .ref.npz)
+    reference: bool = False
+    reference_jitter_px: float = 1.0  # registration error of the reference: shift up to this (px), rotation 0.3 deg
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
@@ -108,9 +112,13 @@ class Batcher:
     """
 
     def __init__(self, rgb_nxhxwx3: np.ndarray, tgt_nx2xhxw: np.ndarray, cfg: TrainConfig,
-                 rng: np.random.Generator, centre_nx3xhxw: np.ndarray | None = None) -> None:
+                 rng: np.random.Generator, centre_nx3xhxw: np.ndarray | None = None,
+                 ref_nxhxwx3: np.ndarray | None = None) -> None:
         self.rgb, self.tgt, self.cfg, self.rng = rgb_nxhxwx3, tgt_nx2xhxw, cfg, rng
         self.centre = centre_nx3xhxw
+        self.ref = ref_nxhxwx3
+        if cfg.reference and ref_nxhxwx3 is None:
+            raise ConfigError("train.reference is set but the data have no reference passes (.ref.npz); render them")
 
     def sample(self) -> tuple[torch.Tensor, torch.Tensor]:
         c, r = self.cfg, self.rng
@@ -120,6 +128,9 @@ class Batcher:
         for i in r.integers(0, n, c.batch_size):
             y0, x0 = int(r.integers(0, H - ch + 1)), int(r.integers(0, W - cw + 1))
             img = self.rgb[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
+            if self.ref is not None:  # the reference view, misregistered a little, side by side in the channels
+                ref = jitter(self.ref[i].astype(np.float32), c.reference_jitter_px, r)[y0:y0 + ch, x0:x0 + cw]
+                img = np.concatenate([img, ref], axis=2)
             t = self.tgt[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
             if self.centre is not None:
                 t = np.concatenate([t, self.centre[i, :, y0:y0 + ch, x0:x0 + cw].astype(np.float32)])
@@ -130,12 +141,21 @@ class Batcher:
                 img, t = img[:, ::-1], t[:, :, ::-1].copy()
                 if len(t) > 2:
                     t[4] = -t[4]
-            if c.sensor_effects > 0:
+            if c.sensor_effects > 0 and img.shape[2] == 6:  # one camera: the same effects, independent noise
+                state = r.bit_generator.state
+                scene, _ = sensor_effects(np.ascontiguousarray(img[..., :3]), r, c.sensor_effects)
+                after = r.bit_generator.state
+                r.bit_generator.state = state
+                ref, _ = sensor_effects(np.ascontiguousarray(img[..., 3:]), r, c.sensor_effects)
+                r.bit_generator.state = after
+                ref = ref * r.uniform(0.92, 1.08) * r.uniform(0.97, 1.03, 3) + r.normal(0, 2.0, ref.shape)
+                img = np.concatenate([scene, np.clip(ref, 0, 255)], axis=2)
+            elif c.sensor_effects > 0:
                 img, _ = sensor_effects(np.ascontiguousarray(img), r, c.sensor_effects)
             else:
                 m = img.mean()
                 img = (img - m) * r.uniform(0.7, 1.3) + m * r.uniform(0.7, 1.3)
-                img = img * r.uniform(0.9, 1.1, 3) + r.normal(0, r.uniform(0, 6), img.shape)
+                img = img * r.uniform(0.9, 1.1, img.shape[2]) + r.normal(0, r.uniform(0, 6), img.shape)
             xs.append(np.clip(img, 0, 255).astype(np.float32).transpose(2, 0, 1))
             ys.append(t)
         x, y = np.ascontiguousarray(np.stack(xs)), np.ascontiguousarray(np.stack(ys))
@@ -161,18 +181,33 @@ def loss_fn(logits: torch.Tensor, tgt: torch.Tensor, cfg: TrainConfig) -> tuple[
     return total, parts
 
 
+def jitter(img_hxwxc: np.ndarray, max_px: float, rng: np.random.Generator, max_deg: float = 0.3) -> np.ndarray:
+    """``img`` shifted by up to ``max_px`` px in x and y and rotated by up to ``max_deg`` about its centre (bilinear,
+    edges replicated): the registration error between a scene view and its reference view."""
+    if max_px <= 0:
+        return img_hxwxc
+    h, w = img_hxwxc.shape[:2]
+    M = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), float(rng.uniform(-max_deg, max_deg)), 1.0)
+    M[:, 2] += rng.uniform(-max_px, max_px, 2)
+    return cv2.warpAffine(img_hxwxc, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
 @torch.no_grad()
-def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4) -> np.ndarray:
+def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4, ref_nxhxwx3: np.ndarray | None = None
+            ) -> np.ndarray:
     """(N, C, H, W) float32 maps (edge-padded to multiples of the stride, cropped back): probabilities of
-    foreground, boundary (and centre), then the centre offsets (dy, dx) in px when the net has the centre head."""
+    foreground, boundary (and centre), then the centre offsets (dy, dx) in px when the net has the centre head.
+    A reference-mode network reads ``ref`` (the empty workspace's views) beside ``rgb``."""
     net.eval()
+    if ref_nxhxwx3 is not None:
+        rgb_nxhxwx3 = np.concatenate([rgb_nxhxwx3, ref_nxhxwx3], axis=3)
     n, H, W = rgb_nxhxwx3.shape[:3]
     s = net.stride
     ph, pw = -H % s, -W % s
     c = net.head.out_channels
     out = np.empty((n, c, H, W), np.float32)
     for i in range(0, n, batch):
-        x = torch.from_numpy(rgb_nxhxwx3[i:i + batch].astype(np.float32)).permute(0, 3, 1, 2)
+        x = torch.from_numpy(np.ascontiguousarray(rgb_nxhxwx3[i:i + batch], np.float32)).permute(0, 3, 1, 2)
         x = F.pad(x, (0, pw, 0, ph), mode="replicate")
         y = net(normalise(x))[:, :, :H, :W]
         out[i:i + batch, :3] = torch.sigmoid(y[:, :3]).numpy()
@@ -181,14 +216,15 @@ def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4) -> np.ndarray
     return out
 
 
-def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: int = 100) -> dict[str, float]:
+def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: int = 100,
+               ref: np.ndarray | None = None) -> dict[str, float]:
     """``fg_iou``: mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1); ``object_iou``: mean over
     (view, GT object with >= ``min_visible_px`` px) of the best IoU with an instance extracted by
     :func:`torm.segmentation.instances.instances_from_maps` with its default settings."""
     from torm.segmentation.instances import instances_from_maps
     from torm.segmentation.training.evaluate import _ious
 
-    maps = predict(net, rgb)
+    maps = predict(net, rgb, ref_nxhxwx3=ref)
     p = maps[:, 0] > 0.5
     g = mask > 0
     inter = (p & g).reshape(len(g), -1).sum(1)
@@ -209,7 +245,7 @@ def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 32
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     wrapper = ExportWrapper(net).eval()
-    x = torch.rand(1, 3, *example_hw) * 255
+    x = torch.rand(1, getattr(net, "in_channels", 3), *example_hw) * 255
     with warnings.catch_warnings():  # the TorchScript exporter's deprecation notice; its output is checked in tests
         warnings.simplefilter("ignore", DeprecationWarning)
         torch.onnx.export(wrapper, (x,), str(path), input_names=["image"], output_names=["logits"], opset_version=17,
@@ -219,8 +255,10 @@ def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 32
 
 
 def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_rgb: np.ndarray,
-          val_mask: np.ndarray, workdir: Path, progress: bool = True) -> dict[str, Any]:
+          val_mask: np.ndarray, workdir: Path, progress: bool = True, train_ref: np.ndarray | None = None,
+          val_ref: np.ndarray | None = None) -> dict[str, Any]:
     """Train (resuming from ``workdir/checkpoint.pt``); the best-validation weights go to ``workdir/best.pt``.
+    ``train_ref`` / ``val_ref``: the reference views (reference mode, ``cfg.reference``).
 
     Returns a summary: steps, wall time, best validation foreground IoU and its step, the loss history.
     """
@@ -230,7 +268,7 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)  # weight init only; data order comes from the explicit Generator below
-    net = SegUNet(cfg.channels, cfg.centre_head)
+    net = SegUNet(cfg.channels, cfg.centre_head, 6 if cfg.reference else 3)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     rng = np.random.default_rng(cfg.seed)
     state: dict[str, Any] = {"step": 0, "best_iou": -1.0, "best_step": 0, "history": [], "wall_s": 0.0}
@@ -263,7 +301,9 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         for i, m in enumerate(train_mask):
             heat, off = centre_targets(m, cfg.centre_sigma_px)
             centre[i, 0], centre[i, 1:] = heat, off
-    batcher = Batcher(train_rgb, tgt, cfg, rng, centre)
+    batcher = Batcher(train_rgb, tgt, cfg, rng, centre, train_ref if cfg.reference else None)
+    if cfg.reference and val_ref is None:
+        raise ConfigError("train.reference is set but the validation split has no reference passes")
 
     def save(path: Path) -> None:
         tmp = path.with_suffix(".tmp")
@@ -293,7 +333,7 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         bar.update(1)
         step = state["step"]
         if step % cfg.val_every == 0 or step == cfg.steps:
-            sc = val_scores(net, val_rgb, val_mask)
+            sc = val_scores(net, val_rgb, val_mask, ref=val_ref if cfg.reference else None)
             iou = sc[cfg.select_on]
             state["history"].append({"step": step, "loss": float(np.mean(running)), "val_fg_iou": sc["fg_iou"],
                                      "val_object_iou": sc["object_iou"], **parts})
@@ -338,7 +378,7 @@ def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
 def load_best(workdir: Path, cfg: TrainConfig) -> SegUNet:
     """The best-validation network of a training run."""
     saved = torch.load(Path(workdir) / "best.pt", map_location="cpu", weights_only=False)
-    net = SegUNet(cfg.channels, cfg.centre_head)
+    net = SegUNet(cfg.channels, cfg.centre_head, 6 if cfg.reference else 3)
     net.load_state_dict(saved["model"])
     return net.eval()
 

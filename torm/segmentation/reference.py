@@ -1,0 +1,186 @@
+"""Reference views: the same camera over the empty workspace, as evidence for segmentation (issue 43).
+
+A robot flies its capture path once before the objects are placed; each scene view then has a reference view.
+Glass changes the pixels behind it (refraction, reflections, rims), so the scene-minus-reference difference is a
+high-recall cue; alone it is not a segmenter (shadows, render or sensor noise and a fraction of a pixel of
+misregistration all differ too: mean IoU 0.63 measured on PBR pairs, ``../shared/facts/PERCEPTION.md``).
+
+- :func:`attach_reference`: pair a recorded reference capture with a scene capture, view by view, by camera pose;
+  refuse a reference whose poses differ by more than the arm's repeatability, of another image size or of another
+  renderer (named errors with the fix).
+- :func:`difference_instances`: the plain thresholded difference (per-channel exposure normalisation, |scene -
+  reference| > ``threshold`` grey levels in any channel, close 7x7, open 3x3, holes filled, connected components
+  >= ``min_area_px``) as instance masks: the baseline, and the high-recall seed.
+- :class:`DifferenceSegmenter` (``difference``): that baseline as a :class:`~torm.segmentation.base.Segmenter`.
+- :func:`check_background`: after segmentation, the median absolute difference between scene and reference
+  outside the (dilated) objects; above ``max_grey`` the static background no longer matches (the table moved,
+  the light changed) and the reference is refused.
+
+The reference-mode learned model (``in_channels`` 6) reads scene and reference side by side:
+:class:`torm.segmentation.learned.LearnedSegmenter` with a model trained by ``torm train-segmenter`` with
+``train.reference: true``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from torm.errors import CaptureError, ConfigError
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter
+from torm.types import Capture
+
+log = logging.getLogger(__name__)
+
+#: default pose tolerance between a view and its reference: a UR-class arm's stated pose repeatability is
+#: +-0.03-0.1 mm, hand-eye and re-planned paths add more; 2 mm / 0.5 deg admits a re-flown path, not a moved camera
+MAX_SHIFT_MM = 2.0
+MAX_ROT_DEG = 0.5
+
+
+def _rot_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
+    c = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def attach_reference(capture: Capture, reference: Capture, max_shift_mm: float = MAX_SHIFT_MM,
+                     max_rot_deg: float = MAX_ROT_DEG) -> Capture:
+    """``capture`` with every view's ``reference_rgb`` set from the reference capture's view at the nearest camera
+    pose. Raises :class:`CaptureError` when a view has no reference within ``max_shift_mm`` / ``max_rot_deg``,
+    when the image sizes differ, or when the two captures name different renderers."""
+    if any(v.rgb is None for v in reference.views):
+        raise CaptureError("the reference capture has views without RGB images; record it with RGB")
+    r_scene = str(capture.metadata.get("renderer") or "recorded")
+    r_ref = str(reference.metadata.get("renderer") or "recorded")
+    if r_scene.split()[0] != r_ref.split()[0] or ("scalar_rgb" in r_scene) != ("scalar_rgb" in r_ref):
+        raise CaptureError(f"the reference was rendered by {r_ref!r} but the scene by {r_scene!r}: a reference "
+                           "must come from the same camera or renderer; record it again")
+    if reference.image_size != capture.image_size:
+        raise CaptureError(f"reference images are {reference.image_size[1]}x{reference.image_size[0]} but the scene's "
+                           f"are {capture.image_size[1]}x{capture.image_size[0]}; record the reference with the same "
+                           "camera settings")
+    t_ref = np.stack([v.T_world_cam[:3, 3] for v in reference.views])
+    views = []
+    for i, v in enumerate(capture.views):
+        d = np.linalg.norm(t_ref - v.T_world_cam[:3, 3], axis=1) * 1000.0
+        j = int(np.argmin(d))
+        rot = _rot_deg(v.T_world_cam[:3, :3], reference.views[j].T_world_cam[:3, :3])
+        if d[j] > max_shift_mm or rot > max_rot_deg:
+            raise CaptureError(f"view {i} ({v.name!r}): the nearest reference view ({j}) is {d[j]:.1f} mm and "
+                               f"{rot:.2f} deg away (allowed {max_shift_mm} mm, {max_rot_deg} deg): the reference "
+                               "pass must fly the same camera poses; record it again with the same path")
+        views.append(v.with_(reference_rgb=reference.views[j].rgb))
+    from dataclasses import replace
+
+    meta = dict(capture.metadata)
+    meta["reference"] = {"source": str(reference.metadata.get("source") or reference.scenario or "recorded"),
+                         "recorded": reference.metadata.get("date") or reference.metadata.get("created"),
+                         "renderer": r_ref}
+    return replace(capture, views=tuple(views), metadata=meta)
+
+
+def _normalised(img_hxwx3: np.ndarray) -> np.ndarray:
+    """Per-channel exposure normalisation: each channel scaled to a mean of 128."""
+    f = img_hxwx3.astype(np.float32)
+    return f * (128.0 / np.maximum(f.reshape(-1, 3).mean(axis=0), 1.0))
+
+
+def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray) -> np.ndarray:
+    """(H, W) float32: max over channels of |scene - reference| after per-channel exposure normalisation (grey
+    levels)."""
+    return np.abs(_normalised(rgb_hxwx3) - _normalised(reference_hxwx3)).max(axis=2)
+
+
+def difference_instances(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, threshold: float = 10.0,
+                         min_area_px: int = 60) -> np.ndarray:
+    """(H, W) int32 instances of the thresholded difference (see the module docstring), ids 1..N by area."""
+    fg = (difference_map(rgb_hxwx3, reference_hxwx3) > threshold).astype(np.uint8)
+    fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
+    fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    # fill holes: background not connected to the border becomes foreground
+    h, w = fg.shape
+    flood = fg.copy()
+    cv2.floodFill(flood, np.zeros((h + 2, w + 2), np.uint8), (0, 0), 1)
+    fg = fg | (1 - flood)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area_px]
+    keep.sort(key=lambda k: -stats[k, cv2.CC_STAT_AREA])
+    out = np.zeros((h, w), np.int32)
+    for new, k in enumerate(keep, start=1):
+        out[lab == k] = new
+    return out
+
+
+def check_background(capture: Capture, masks_vxhxw: np.ndarray, max_grey: float = 8.0,
+                     dilate_px: int = 15) -> float:
+    """Median over views of the median |scene - reference| (grey levels, exposure-normalised) outside the
+    objects (``masks`` > 0, dilated by ``dilate_px``); raises :class:`CaptureError` above ``max_grey`` (the static
+    background changed since the reference pass). Returns the value."""
+    vals = []
+    k = np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)
+    for v, m in zip(capture.views, masks_vxhxw, strict=True):
+        if v.reference_rgb is None or v.rgb is None:
+            continue
+        bg = cv2.dilate((np.asarray(m) > 0).astype(np.uint8), k) == 0
+        if bg.any():
+            vals.append(float(np.median(difference_map(v.rgb, v.reference_rgb)[bg])))
+    if not vals:
+        return 0.0
+    med = float(np.median(vals))
+    if med > max_grey:
+        raise CaptureError(f"the static background differs from the reference pass by {med:.1f} grey levels "
+                           f"(median outside the objects; allowed {max_grey}): the table, the camera or the lighting "
+                           "changed since it was recorded; record a new reference pass over the empty workspace")
+    return med
+
+
+@dataclass(frozen=True)
+class DifferenceConfig:
+    """``threshold`` grey levels (exposure-normalised |scene - reference|), ``min_area_px`` px."""
+
+    threshold: float = 10.0
+    min_area_px: int = 60
+
+    def __post_init__(self) -> None:
+        if not self.threshold > 0 or self.min_area_px < 0:
+            raise ConfigError("difference: need threshold > 0 and min_area_px >= 0")
+
+
+class DifferenceSegmenter(Segmenter):
+    """The plain scene-minus-reference segmenter (``difference``); every view needs ``reference_rgb``."""
+
+    name = "difference"
+
+    def __init__(self, config: DifferenceConfig | None = None) -> None:
+        self.config = config or DifferenceConfig()
+
+    def segment(self, capture: Capture) -> SegmentationResult:
+        import time
+
+        t0 = time.perf_counter()
+        masks, dets = [], []
+        for i, v in enumerate(capture.views):
+            if v.rgb is None or v.reference_rgb is None:
+                raise CaptureError(f"view {i} ({v.name!r}) has no reference view; the difference segmenter needs a "
+                                   "reference pass (--set capture.reference=true, or torm segment --reference DIR)")
+            m = difference_instances(v.rgb, v.reference_rgb, self.config.threshold, self.config.min_area_px)
+            d = []
+            for k in range(1, int(m.max()) + 1):
+                ys, xs = np.nonzero(m == k)
+                d.append(Detection((float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)), 1.0,
+                                   "object", k))
+            masks.append(m)
+            dets.append(tuple(d))
+        info: dict[str, Any] = {"segmenter": self.name, "threshold": self.config.threshold}
+        out = np.stack(masks)
+        if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
+            from torm.segmentation.base import mask_reference
+            from torm.segmentation.quality import mask_quality
+
+            info["quality"] = mask_quality(out, capture.masks())
+            info["quality_reference"] = mask_reference(capture)
+        return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
