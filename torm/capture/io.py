@@ -29,9 +29,11 @@ instance 1; soft greyscale masks (coverage or alpha values at the edges, or more
 :data:`MAX_LABELS` grey levels in an 8-bit file; :func:`mask_kind`) are thresholded at 0.5 into
 instance 1, with one log line; instance ids are taken only from integer-labelled masks, and a mask
 with more than :data:`MAX_LABELS` ids is warned about; frames without masks; 16-bit PNG depth scaled by the file's
-``depth_unit_scale_factor`` (default 1e-3, i.e. millimetres). Lens distortion coefficients are
-ignored with a warning. Inconsistent folders raise :class:`~torm.errors.CaptureError` naming the
-offending file.
+``depth_unit_scale_factor`` (default 1e-3, i.e. millimetres). A lens model with distortion (``camera_model``
+OPENCV, OPENCV_FISHEYE, SIMPLE_RADIAL or RADIAL with ``k1``... at the top level or per frame) is undone when the
+frame is loaded: images, masks and depth are resampled onto the pinhole camera with the same intrinsics
+(:mod:`torm.capture.lens`), and ``metadata["undistorted"]`` says so; an unknown model is an error.
+Inconsistent folders raise :class:`~torm.errors.CaptureError` naming the offending file.
 """
 
 from __future__ import annotations
@@ -57,7 +59,6 @@ log = logging.getLogger(__name__)
 TRANSFORMS_NAMES: tuple[str, ...] = ("transforms.json", "transforms_train.json")
 #: Extensions tried for a ``file_path`` that has none or does not exist as written.
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
-_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 #: Up to this many ids per mask an 8-bit mask may be an instance map; more is greyscale (or warned about).
 MAX_LABELS = 48
 
@@ -321,8 +322,10 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
     bad = [i for i in indices if not 0 <= i < len(frames_all)]
     if bad or not indices:
         raise CaptureError(f"{tpath}: view indices {bad or indices} out of range; it has {len(frames_all)} frames")
-    if any(doc.get(k) for k in _DISTORTION_KEYS):
-        log.warning("%s: lens distortion coefficients are ignored (images are treated as undistorted)", tpath)
+    from torm.capture.lens import Lens, undistort
+
+    undistorted: dict[str, Any] = {}
+    maps_cache: dict[Any, Any] = {}
     depth_scale = float(doc.get("depth_unit_scale_factor", 1e-3))
 
     object_ids = tuple(int(i) for i in doc.get("object_ids") or ())
@@ -409,6 +412,20 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
                                    f"{ref.shape[0]} but the frame is {img_hw[1]}x{img_hw[0]}; record the reference "
                                    "pass with the same camera settings")
         K = _frame_K(doc, frame, img_hw[1], img_hw[0], where)
+        try:
+            lens = Lens.from_json(doc, frame)
+        except CaptureError as exc:
+            raise CaptureError(f"{where}: {exc}") from exc
+        if not lens.is_pinhole:  # resample everything onto the pinhole camera with the same K
+            key = (lens, K.tobytes(), img_hw)
+            if key not in maps_cache:
+                maps_cache[key] = lens.undistort_maps(K, img_hw[1], img_hw[0])
+            mp = maps_cache[key]
+            rgb = undistort(rgb, mp) if rgb is not None else None
+            ref = undistort(ref, mp) if ref is not None else None
+            mask = undistort(mask, mp, nearest=True) if mask is not None else None
+            depths = {k: undistort(d, mp, nearest=True) if d is not None else None for k, d in depths.items()}
+            undistorted.setdefault(json.dumps(lens.to_json(), sort_keys=True), []).append(i)
         T = _frame_pose(frame, where)
         try:
             out.append(CameraView(K=K, T_world_cam=T, rgb=rgb, mask=mask, name=label, reference_rgb=ref, **depths))
@@ -428,6 +445,11 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
     bounds = doc.get("workspace_bounds")
     table = doc.get("table_height")
     seed = doc.get("seed")
+    meta = dict(doc.get("metadata") or {})
+    if undistorted:
+        meta["undistorted"] = [{**json.loads(k), "frames": v} for k, v in undistorted.items()]
+        log.info("%s: lens distortion undone on %d frame(s) (%s)", tpath, sum(len(v) for v in undistorted.values()),
+                 "; ".join(k for k in undistorted))
     try:
         return Capture(
             views=tuple(out),
@@ -437,7 +459,7 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
             object_names=object_names,
             table_height=None if table is None else float(table),
             workspace_bounds=None if bounds is None else np.asarray(bounds, dtype=np.float64),
-            metadata=dict(doc.get("metadata") or {}),
+            metadata=meta,
         )
     except CaptureError as exc:
         raise CaptureError(f"{tpath}: {exc}") from exc
