@@ -574,10 +574,12 @@ class SimBackend:
         """(V, 4, 4) camera-to-world poses (OpenCV axes, m) of the capture layout, without rendering."""
         return self._get_rig().poses(n_views)
 
-    def capture_views(self, n_views: int | None, indices: Any, channels: Any = None) -> Capture:
-        """Render only the layout views ``indices`` (of ``n_views``) with ``channels`` (default: the rig's)."""
-        return self._report(self._get_rig().capture(n_views, indices=indices, channels=channels,
-                                                    reference=self.reference))
+    def capture_views(self, n_views: int | None, indices: Any, channels: Any = None,
+                      reference: bool | None = None) -> Capture:
+        """Render only the layout views ``indices`` (of ``n_views``) with ``channels`` (default: the rig's);
+        ``reference`` (default :attr:`reference`): also each view's reference pass over the empty workspace."""
+        ref = self.reference if reference is None else bool(reference)
+        return self._report(self._get_rig().capture(n_views, indices=indices, channels=channels, reference=ref))
 
     def calibration(self) -> Calibration:
         """What the simulated cell declares, as a lab would: the table height of the scene description (stated

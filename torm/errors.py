@@ -68,3 +68,7 @@ class BenchmarkError(TormError):
 
 class OutputError(TormError):
     """An output file or folder (``--out``, ``--record``) cannot be written."""
+
+
+class PluginError(TormError):
+    """A plug-in method that cannot be found or loaded, or whose output breaks the interface (names the plug-in)."""

@@ -73,7 +73,28 @@ def _gripper(backend: Any):
     return GripperGeometry.from_robot_config(to_dict(rcfg.gripper.geometry))
 
 
-def _capture(config: TrialConfig, backend: Any, rgb: bool = False) -> tuple[Capture, dict[str, Any]]:
+def _capture_plugin(config: TrialConfig, backend: Any, needs: Any, rgb: bool) -> tuple[Capture, dict[str, Any]]:
+    """What a plug-in method declared (:class:`torm.methods.Needs`): its channels, all views or the most top-down
+    one, the reference pass if asked; a backend without partial captures captures everything."""
+    n = config.capture.n_views
+    channels = tuple(dict.fromkeys(needs.channels() + (("rgb",) if rgb else ())))
+    if hasattr(backend, "capture_views") and hasattr(backend, "capture_poses"):
+        poses = backend.capture_poses(n)
+        idx = [most_top_down_pose(poses)] if needs.views == "top_down" else list(range(len(poses)))
+        kw = {"reference": True} if needs.reference else {}
+        cap = backend.capture_views(n, idx, channels, **kw)
+        info = {"views_captured": len(cap), "views_used": len(cap), "channels": list(channels)}
+    else:
+        full = backend.capture(n)
+        cap = full.subset([most_top_down_view(full)]) if needs.views == "top_down" else full
+        info = {"views_captured": len(full), "views_used": len(cap), "channels": "all"}
+    if needs.reference and any(v.reference_rgb is None for v in cap.views):
+        raise ConfigError(f"method {config.method!r} needs reference views, which this backend did not capture")
+    return cap, {**info, "needs": needs.as_dict()}
+
+
+def _capture(config: TrialConfig, backend: Any, rgb: bool = False, plugin: Any = None
+             ) -> tuple[Capture, dict[str, Any]]:
     """The capture ``config.method`` needs, and what was captured (views, channels, layout indices).
 
     ``torm`` with an image segmenter (:data:`IMAGE_SEGMENTERS`): the full ``capture.n_views`` capture; ``torm``
@@ -84,6 +105,8 @@ def _capture(config: TrialConfig, backend: Any, rgb: bool = False) -> tuple[Capt
     backend without partial captures (``capture_views``) captures everything and the baseline takes a subset.
     """
     n = config.capture.n_views
+    if plugin is not None:
+        return _capture_plugin(config, backend, plugin.needs, rgb)
     depth_method = config.method in ("depth", "depth_fusion")
     partial = depth_method and hasattr(backend, "capture_views") and hasattr(backend, "capture_poses")
     if config.method == "depth":
@@ -148,8 +171,11 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
         oracle_meshes: the true object meshes, for ``method="oracle"`` only (a perception oracle the harness
             grants explicitly in simulation; the real backend has none).
     """
+    from torm.methods import is_builtin, load_method
+
+    plugin = None if is_builtin(config.method) else load_method(config.method, dict(config.method_options))
     t = time.perf_counter()
-    capture, cap_info = _capture(config, backend, rgb)
+    capture, cap_info = _capture(config, backend, rgb, plugin)
     cap_info["capture_s"] = time.perf_counter() - t
     timings["capture"] = timings.get("capture", 0.0) + cap_info["capture_s"]
     log.info("capture: %d views in %.1f s", len(capture.views), cap_info["capture_s"])
@@ -169,6 +195,9 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     elif config.method == "depth_fusion":
         per = perceive_depth_fusion(capture, config.fusion, n_points, rng)
         timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
+    elif plugin is not None:
+        per = perceive_plugin(plugin, config, capture, table_z, n_points, rng)
+        timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
     else:
         if oracle_meshes is None:
             raise ConfigError("method 'oracle' needs the simulator's true meshes (a simulated backend); the real "
@@ -181,6 +210,38 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     per.info["table"] = table_info
     log.info("perception (%s): %d objects in %.1f s", config.method, len(per.point_clouds), time.perf_counter() - t)
     return per
+
+
+#: the box (m, world; relative to the table top in z) a plug-in's objects are checked against when the capture
+#: declares no workspace bounds
+DEFAULT_WORKSPACE = ((0.15, -0.45, -0.03), (0.95, 0.45, 0.40))
+
+
+def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z: float, n_points: int,
+                    rng: np.random.Generator) -> Perception:
+    """Run a plug-in method (:mod:`torm.methods`): validate its output, estimate missing normals (PCA, oriented to
+    the cameras), resample every object to ``n_points`` samples; ``info`` records name, version and confidences."""
+    from torm.methods import MethodContext, validate_estimates
+    from torm.perception import _estimate_normals, _resample
+
+    if capture.workspace_bounds is not None:
+        bounds = np.asarray(capture.workspace_bounds, np.float64)
+    else:
+        bounds = np.asarray(DEFAULT_WORKSPACE, np.float64) + np.array([0.0, 0.0, table_z])
+    ctx = MethodContext(n_points=n_points, rng=rng, table_height=table_z, workspace_bounds=bounds,
+                        options=dict(config.method_options))
+    estimates = validate_estimates(config.method, method.perceive(capture, ctx), bounds)
+    eye = np.mean([v.T_world_cam[:3, 3] for v in capture.views], axis=0)
+    clouds, meshes = [], []
+    for k, e in enumerate(estimates):
+        p = np.asarray(e.points_nx3, np.float64)
+        nrm = np.asarray(e.normals_nx3, np.float64) if e.normals_nx3 is not None else _estimate_normals(p, eye)
+        nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+        p, nrm = _resample(p, nrm, n_points, rng)
+        clouds.append(ObjectPointCloud(p, nrm, 1000 + k))
+        meshes.append(e.mesh)
+    return Perception(clouds, meshes, {"plugin": {"name": str(method.name), "version": str(method.version),
+                                                  "confidences": [float(e.confidence) for e in estimates]}})
 
 
 class _Labels:

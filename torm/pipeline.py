@@ -170,7 +170,9 @@ class TrialConfig:
         scenario: scenario name (``torm scenes list``).
         seed: scene layout seed; also seeds segmentation noise and sampling.
         method: ``torm`` | ``depth`` (single-view depth) | ``depth_fusion`` (TSDF fusion of every view's depth) |
-            ``oracle`` (see :mod:`torm.perception`).
+            ``oracle`` (see :mod:`torm.perception`), or a plug-in: an installed ``torm.methods`` entry point's name
+            or ``package.module:callable`` (:mod:`torm.methods`; ``torm methods list``).
+        method_options: keyword arguments for a plug-in method's factory (recorded, hashed in the context).
         backend: ``sim`` or ``real``.
         robot: robot folder name or robot YAML path.
         re_perceive: capture and reconstruct again before every pick after the first.
@@ -188,7 +190,8 @@ class TrialConfig:
 
     scenario: str = "rw3"
     seed: int = 0
-    method: Literal["torm", "depth", "depth_fusion", "oracle"] = "torm"
+    method: str = "torm"
+    method_options: dict[str, Any] = field(default_factory=dict)
     backend: Literal["sim", "real"] = "sim"
     robot: str = "inovo_2f85"
     re_perceive: bool = False
@@ -210,8 +213,10 @@ class TrialConfig:
         check_finite(self, "TrialConfig")  # NaN / inf in any float field of any section (torm.config)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer (0, 1, 2, ...), got {self.seed!r}")
-        if self.method not in METHODS:
-            raise UnknownNameError("method", self.method, METHODS)
+        if self.method not in METHODS:  # a plug-in (entry point or module:callable), or an unknown name
+            from torm.methods import check_method_name
+
+            check_method_name(self.method)
         if self.table not in TABLE_SOURCES:
             raise UnknownNameError("table", self.table, TABLE_SOURCES)
         if self.backend not in ("sim", "real"):
@@ -261,6 +266,15 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     }
     if config.capture.reference:
         ctx["reference"] = True
+    from torm.methods import is_builtin
+
+    if not is_builtin(config.method):  # a plug-in: which one, which version, with which options
+        from torm.methods import method_info
+        from torm.methods.registry import options_hash
+
+        info = method_info(config.method, dict(config.method_options))
+        ctx.update(method_name=info.name, method_version=info.version, method_source=info.source,
+                   method_options_sha=options_hash(dict(config.method_options)))
     if torm_method and seg.segmenter == "learned":
         from torm.segmentation.learned import model_fingerprint
 

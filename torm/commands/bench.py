@@ -41,7 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="only these scenarios of the suite (repeatable or comma-separated; default all)")
     p.add_argument("--trials", type=count_arg, default=1, help="trials per scenario and method (default 1)")
     p.add_argument("--method", action="append", default=[], metavar="METHOD",
-                   help=f"perception method(s) {', '.join(METHODS)} (repeatable or comma-separated; default torm)")
+                   help=f"perception method(s) {', '.join(METHODS)}, an installed plug-in (torm methods list) or "
+                        "package.module:callable (repeatable or comma-separated; default torm)")
     p.add_argument("--workers", type=count_arg, default=1, help="trials at the same time (default 1)")
     p.add_argument("--out", required=True, help="run folder (created; resumed when it exists)")
     p.add_argument("--engine", choices=ENGINES, default="pool", help="pool: local processes (default); ray: Ray tasks")
