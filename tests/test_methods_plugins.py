@@ -1,0 +1,95 @@
+"""Bring your own method (issue 40): plug-ins found by entry point or module:callable run trials and benchmarks
+like built-ins; their outputs are checked; a crashing plug-in costs one error row."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from torm.errors import PluginError
+
+EXAMPLE_SRC = Path(__file__).resolve().parents[1] / "examples" / "torm_plane_fill" / "src"
+BOUNDS = np.array([[0.15, -0.45, -0.03], [0.95, 0.45, 0.40]])
+
+
+@pytest.fixture
+def installed_plane_fill(tmp_path, monkeypatch):
+    """The example plug-in as pip would install it: its package importable and a dist-info with its entry point."""
+    site = tmp_path / "site"
+    dist = site / "torm_plane_fill-0.1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: torm-plane-fill\nVersion: 0.1.0\n")
+    (dist / "entry_points.txt").write_text("[torm.methods]\nplane_fill = torm_plane_fill:PlaneFill\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.syspath_prepend(str(EXAMPLE_SRC))
+    monkeypatch.setenv("PYTHONPATH", f"{EXAMPLE_SRC}:{site}:{Path(__file__).parent}")
+    yield "plane_fill"
+    sys.modules.pop("torm_plane_fill", None)
+
+
+def test_registry_lists_builtins_and_installed_plugins_and_names_bad_ones(installed_plane_fill):
+    from torm.errors import UnknownNameError
+    from torm.methods import list_methods, load_method, method_info
+
+    rows = {r.name: r for r in list_methods()}
+    assert {"torm", "depth", "depth_fusion", "oracle", "plane_fill"} <= set(rows)
+    assert rows["plane_fill"].version == "0.1.0" and "entry point" in rows["plane_fill"].source
+    assert method_info("plugin_methods:Returns").source == "module:callable"
+    with pytest.raises(UnknownNameError, match="plane_fill"):
+        load_method("plane_fil")
+    with pytest.raises(PluginError, match="cannot import"):
+        load_method("plugin_methods:Nope")
+    with pytest.raises(PluginError, match="does not accept the options"):
+        load_method("plugin_methods:Returns", {"colour": "red"})
+    with pytest.raises(PluginError, match="lacks"):
+        load_method("json:JSONDecoder")
+
+
+@pytest.mark.parametrize(("kind", "match"), [
+    ("nan", "NaN or inf"), ("camera_frame", "world frame"), ("mm", "millimetres"), ("shape", r"shape \(50, 2\)"),
+    ("array", "returned ndarray")])
+def test_malformed_plugin_output_is_a_named_error(kind, match):
+    from torm.methods import MethodContext, load_method, validate_estimates
+
+    m = load_method("plugin_methods:Returns", {"kind": kind})
+    ctx = MethodContext(64, np.random.default_rng(0), 0.0, BOUNDS)
+    with pytest.raises(PluginError, match=f"method 'plugin_methods:Returns'.*{match}"):
+        validate_estimates("plugin_methods:Returns", m.perceive(None, ctx), BOUNDS)
+    assert len(validate_estimates("x", load_method("plugin_methods:Returns").perceive(None, ctx), BOUNDS)) == 1
+
+
+@pytest.mark.slow
+def test_an_installed_plugin_runs_a_trial_and_its_row_names_it(installed_plane_fill):
+    from torm import config
+    from torm.pipeline import TrialConfig, run_trial
+
+    cfg = config.from_dict(TrialConfig, {"scenario": "rw1", "method": installed_plane_fill}, [
+        "capture.n_views=6", "capture.scale=0.25", "capture.depth_model=statistical"])
+    rec = run_trial(cfg)
+    ctx = rec["context"]
+    assert (ctx["method_name"], ctx["method_version"]) == ("plane_fill", "0.1.0")
+    assert "entry point" in ctx["method_source"]
+    assert rec["perception"]["capture_info"]["needs"]["views"] == "top_down"
+    assert rec["perception"]["capture_info"]["views_captured"] == 1  # it paid for one view, as it declared
+    assert rec["n_objects"] == 1 and "failure" in rec
+
+
+@pytest.mark.slow
+def test_module_callable_plugins_run_in_the_bench_and_a_crashing_one_costs_one_row(installed_plane_fill, tmp_path):
+    from torm.bench import BenchConfig, run_benchmark
+    from torm.bench.results import read_results
+
+    kw = {"suite": "rw", "scenarios": ("rw1",), "trials": 1, "timeout_s": 300.0, "workers": 1,
+          "methods": ("torm_plane_fill:PlaneFill", "plugin_methods:Crashing"),
+          "overrides": ("capture.n_views=6", "capture.scale=0.25")}
+    run_benchmark(BenchConfig(**kw), tmp_path / "run", progress=False)
+    rows = {r["method"]: r for r in read_results(tmp_path / "run" / "results.jsonl").rows}
+    assert set(rows) == {"torm_plane_fill:PlaneFill", "plugin_methods:Crashing"}
+    ok = rows["torm_plane_fill:PlaneFill"]
+    assert ok["status"] == "ok", ok.get("message")
+    assert ok["context"]["method_version"] == "0.1.0" and ok["context"]["method_source"] == "module:callable"
+    bad = rows["plugin_methods:Crashing"]
+    assert bad["status"] != "ok" and "this plug-in always fails" in str(bad.get("message", bad))
