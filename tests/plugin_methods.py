@@ -40,3 +40,27 @@ class Returns:
         elif self.kind == "array":
             return p
         return [ObjectEstimate(p)]
+
+
+class TopDown:
+    """A planner plug-in: one top-down grasp per object, closing along world y, 2 cm below its top."""
+
+    name, version = "top_down", "0.0.1"
+
+    def __init__(self, frame: str = "world") -> None:
+        self.frame = frame
+
+    def plan(self, point_clouds, meshes, context):
+        from torm.types import Grasp
+
+        out = []
+        for c in point_clouds:
+            p = c.points_nx3
+            T = np.eye(4)
+            T[:3, 0], T[:3, 1], T[:3, 2] = [0, 0, -1], [0, 1, 0], [1, 0, 0]
+            T[:3, 3] = [*p[:, :2].mean(axis=0), p[:, 2].max() - 0.02]
+            if self.frame == "object":
+                T[:3, 3] -= p.mean(axis=0)  # a mistake the harness must catch
+            width = min(float(np.ptp(p[:, 1])) + 0.01, context.gripper.max_opening)
+            out.append([Grasp(T, width, 1.0, c.object_index)])
+        return out

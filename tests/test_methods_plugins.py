@@ -93,3 +93,40 @@ def test_module_callable_plugins_run_in_the_bench_and_a_crashing_one_costs_one_r
     assert ok["context"]["method_version"] == "0.1.0" and ok["context"]["method_source"] == "module:callable"
     bad = rows["plugin_methods:Crashing"]
     assert bad["status"] != "ok" and "this plug-in always fails" in str(bad.get("message", bad))
+
+
+def test_planner_plugins_are_found_checked_and_their_mistakes_named():
+    from torm.errors import UnknownNameError
+    from torm.grasp.gripper import GripperGeometry
+    from torm.methods.planners import PlannerContext, load_planner, validate_grasps
+    from torm.pipeline import TrialConfig
+    from torm.types import ObjectPointCloud
+
+    with pytest.raises(UnknownNameError, match="antipodal, onnx_graspnet"):
+        TrialConfig(planner="graspnett")
+    with pytest.raises(PluginError, match="model_path"):
+        load_planner("onnx_graspnet")
+    p = np.random.default_rng(0).normal([0.55, 0.0, 0.04], 0.015, (200, 3))
+    clouds = [ObjectPointCloud(p, np.tile([0.0, 0.0, 1.0], (200, 1)), 1000)]
+    ctx = PlannerContext(0.0, GripperGeometry(), None, np.random.default_rng(0), None)
+    good = load_planner("plugin_methods:TopDown").plan(clouds, None, ctx)
+    assert len(validate_grasps("td", good, clouds, 0.085)[0]) == 1
+    with pytest.raises(PluginError, match="world frame"):
+        validate_grasps("td", load_planner("plugin_methods:TopDown", {"frame": "object"}).plan(clouds, None, ctx),
+                        clouds, 0.085)
+    with pytest.raises(PluginError, match="one list per input cloud"):
+        validate_grasps("td", good * 2, clouds, 0.085)
+    with pytest.raises(PluginError, match="exceeds the gripper's stroke"):
+        validate_grasps("td", good, clouds, 0.01)
+
+
+@pytest.mark.slow
+def test_a_planner_plugin_plans_a_trial_and_the_row_names_it():
+    from torm import config
+    from torm.pipeline import TrialConfig, run_trial
+
+    cfg = config.from_dict(TrialConfig, {"scenario": "rw1", "method": "oracle", "planner": "plugin_methods:TopDown"},
+                           ["capture.n_views=2", "capture.scale=0.25"])
+    rec = run_trial(cfg)
+    assert rec["context"]["planner"] == "plugin_methods:TopDown" and rec["context"]["planner_version"] == "0.0.1"
+    assert rec["n_objects"] == 1 and rec["objects"][0]["outcome"] not in ("error", None)

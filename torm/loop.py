@@ -244,6 +244,18 @@ def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z:
                                                   "confidences": [float(e.confidence) for e in estimates]}})
 
 
+def plan_with_plugin(config: TrialConfig, per: Perception, table_z: float, gripper: Any, rng: np.random.Generator,
+                     obstacles: np.ndarray | None) -> list[list[Any]]:
+    """Grasps from the trial's planner plug-in (:mod:`torm.methods.planners`), checked before execution."""
+    from torm.methods.planners import PlannerContext, load_planner, validate_grasps
+
+    planner = load_planner(config.planner, dict(config.planner_options))
+    ctx = PlannerContext(table_height=table_z, gripper=gripper, obstacles=obstacles, rng=rng, config=config.grasp,
+                         options=dict(config.planner_options))
+    out = planner.plan(per.point_clouds, per.meshes or None, ctx)
+    return validate_grasps(config.planner, out, per.point_clouds, float(gripper.max_opening))
+
+
 class _Labels:
     """Trial-unique labels for reconstructed objects (``1000, 1001, ...`` across re-perceptions)."""
 
@@ -293,7 +305,10 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
             observer.perceived(per.point_clouds)
         table_z = float(per.info["capture"].table_height)
         t = time.perf_counter()
-        grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng, obstacles)
+        if config.planner == "antipodal":
+            grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng, obstacles)
+        else:
+            grasps = plan_with_plugin(config, per, table_z, gripper, rng, obstacles)
         timings["grasp_planning"] = timings.get("grasp_planning", 0.0) + time.perf_counter() - t
         log.info("grasp planning: %d candidates for %d objects", sum(len(g) for g in grasps), len(grasps))
         if recorder is not None:

@@ -173,6 +173,9 @@ class TrialConfig:
             ``oracle`` (see :mod:`torm.perception`), or a plug-in: an installed ``torm.methods`` entry point's name
             or ``package.module:callable`` (:mod:`torm.methods`; ``torm methods list``).
         method_options: keyword arguments for a plug-in method's factory (recorded, hashed in the context).
+        planner: the grasp planner: ``antipodal`` (default), ``onnx_graspnet``, a ``torm.planners`` entry point or
+            ``package.module:callable`` (:mod:`torm.methods.planners`).
+        planner_options: keyword arguments for the planner's factory.
         backend: ``sim`` or ``real``.
         robot: robot folder name or robot YAML path.
         re_perceive: capture and reconstruct again before every pick after the first.
@@ -192,6 +195,8 @@ class TrialConfig:
     seed: int = 0
     method: str = "torm"
     method_options: dict[str, Any] = field(default_factory=dict)
+    planner: str = "antipodal"
+    planner_options: dict[str, Any] = field(default_factory=dict)
     backend: Literal["sim", "real"] = "sim"
     robot: str = "inovo_2f85"
     re_perceive: bool = False
@@ -217,6 +222,10 @@ class TrialConfig:
             from torm.methods import check_method_name
 
             check_method_name(self.method)
+        if self.planner != "antipodal":
+            from torm.methods.planners import check_planner_name
+
+            check_planner_name(self.planner)
         if self.table not in TABLE_SOURCES:
             raise UnknownNameError("table", self.table, TABLE_SOURCES)
         if self.backend not in ("sim", "real"):
@@ -275,6 +284,13 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         info = method_info(config.method, dict(config.method_options))
         ctx.update(method_name=info.name, method_version=info.version, method_source=info.source,
                    method_options_sha=options_hash(dict(config.method_options)))
+    if config.planner != "antipodal":  # which planner, which version, with which options
+        from torm.methods.planners import load_planner
+        from torm.methods.planners import options_hash as planner_hash
+
+        pl = load_planner(config.planner, dict(config.planner_options))
+        ctx.update(planner=config.planner, planner_version=str(pl.version),
+                   planner_options_sha=planner_hash(dict(config.planner_options)))
     if torm_method and seg.segmenter == "learned":
         from torm.segmentation.learned import model_fingerprint
 

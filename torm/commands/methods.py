@@ -1,4 +1,4 @@
-"""``torm methods``: the perception methods a trial or a benchmark can run, built-in and plug-in.
+"""``torm methods``: the perception methods and grasp planners a trial or a benchmark can run, built-in and plug-in.
 
 Examples::
 
@@ -7,7 +7,8 @@ Examples::
 
 A plug-in registers a factory in the entry-point group ``torm.methods`` of its package (see
 ``docs/methods.md``, "Add your method"); ``torm trial --set method=NAME`` and ``torm bench --method NAME`` then
-run it like a built-in. Any importable ``package.module:callable`` works as well without installation.
+run it like a built-in. Any importable ``package.module:callable`` works as well without installation. Grasp
+planners register in ``torm.planners`` and are chosen with ``--set planner=NAME``.
 """
 
 from __future__ import annotations
@@ -26,10 +27,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lst.set_defaults(func=run_list)
 
 
+def _planners() -> list:
+    from importlib import metadata
+
+    import torm
+    from torm.methods import MethodInfo
+    from torm.methods.planners import BUILTIN_PLANNERS, ENTRY_POINT_GROUP, load_planner
+
+    rows = [MethodInfo(n, torm.__version__, "builtin planner", d) for n, d in BUILTIN_PLANNERS.items()]
+    for ep in sorted(metadata.entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        try:
+            pl = load_planner(ep.name)
+            rows.append(MethodInfo(ep.name, str(pl.version), "planner entry point", (type(pl).__doc__ or "")
+                                   .strip().split("\n")[0]))
+        except Exception as exc:  # listed, not fatal
+            rows.append(MethodInfo(ep.name, "?", "planner entry point", f"fails to load: {exc}"))
+    return rows
+
+
 def run_list(args: argparse.Namespace) -> int:
     from torm.methods import list_methods
 
-    rows = list_methods()
+    rows = list_methods() + _planners()
     if args.json:
         print_json([{"name": r.name, "version": r.version, "source": r.source, "description": r.description}
                     for r in rows])
