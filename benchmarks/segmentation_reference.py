@@ -48,10 +48,10 @@ def scenarios(suites: list[str]) -> list[tuple[str, str, int]]:
     return out
 
 
-def _capture_job(args: tuple[str, int, int, float, int, str]) -> str:
-    """Render one scenario's PBR capture with its reference pass into the cache (one process, one thread)."""
+def _capture_job(args: tuple[str, int, int, float, int, str, str]) -> str:
+    """Render one scenario's capture with its reference pass into the cache (one process, one thread)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    scenario, seed, views, scale, spp, folder = args
+    scenario, seed, views, scale, spp, folder, renderer = args
     if (Path(folder) / "transforms.json").exists():
         return folder
     from sim.camera_rig import CameraRigConfig, SimCameraRig
@@ -61,7 +61,10 @@ def _capture_job(args: tuple[str, int, int, float, int, str]) -> str:
     from torm.capture.render_settings import PbrSettings
 
     world = build_world(scenario, seed, robot=None)
-    r = make_renderer("pbr", world, PbrSettings(spp=spp, threads=1, cache=False))
+    r = None
+    if renderer != "mujoco":
+        variant = "scalar_rgb" if renderer == "pbr_scalar" else "auto"
+        r = make_renderer("pbr", world, PbrSettings(spp=spp, threads=1, cache=False, variant=variant))
     with SimCameraRig.from_world(world, CameraRigConfig(n_views=views, scale=scale), rgb_renderer=r) as rig:
         cap = rig.capture(reference=True)
     cap.metadata["transparent_ids"] = [o.instance_id for o in world.objects if o.transparent]
@@ -96,11 +99,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--scale", type=float, default=0.5)
     ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--renderer", default="pbr", choices=("pbr", "pbr_scalar", "mujoco"),
+                    help="who renders the captures (pbr: Mitsuba llvm_ad_rgb; pbr_scalar: scalar_rgb; mujoco)")
     ap.add_argument("--rows", default="learned:learned_seg,difference")
     ap.add_argument("--cache", default=str(ROOT / "runs" / "seg_reference_captures"))
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", default="segmentation_reference")
+    ap.add_argument("--out", default="", help="result file stem (default segmentation_reference[_<renderer>])")
     args = ap.parse_args(argv)
+    args.out = args.out or ("segmentation_reference" + ("" if args.renderer == "pbr" else f"_{args.renderer}"))
     setup()
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
@@ -110,8 +116,9 @@ def main(argv: list[str] | None = None) -> int:
 
     scs = scenarios([s for s in args.suites.split(",") if s])
     cache = Path(args.cache)
-    jobs = [(name, seed, args.views, args.scale, args.spp, str(cache / f"{name}_s{seed}_v{args.views}_x{args.scale}"
-                                                                        f"_spp{args.spp}")) for _, name, seed in scs]
+    jobs = [(name, seed, args.views, args.scale, args.spp,
+             str(cache / f"{name}_s{seed}_v{args.views}_x{args.scale}_{args.renderer}_spp{args.spp}"), args.renderer)
+            for _, name, seed in scs]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max(1, args.workers), mp_context=mp.get_context("spawn")) as ex:
         folders = list(ex.map(_capture_job, jobs))
@@ -154,10 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     by_table = [[lab, *(mean([r for r in results if r["row"] == lab and r["table"] == t], "glass_iou")
                         for t in tables)] for lab in labels]
     n_table = {t: len({r["scenario"] for r in results if r["table"] == t}) for t in tables}
-    L = ["# Segmentation with and without a reference pass (PBR captures of the suites)", "",
+    look = {"pbr": "Mitsuba PBR (llvm_ad_rgb, glass_path)", "pbr_scalar": "Mitsuba PBR (scalar_rgb, plain path)",
+            "mujoco": "MuJoCo rasteriser"}[args.renderer]
+    L = [f"# Segmentation with and without a reference pass ({look} captures of the suites)", "",
          context_md(doc["context"]), "",
          f"{len(scs)} scenarios ({', '.join(suites)}; scenario k has layout seed k), {args.views} rig views each at "
-         f"{round(1280 * args.scale)}x{round(720 * args.scale)}, Mitsuba PBR at {args.spp} spp, each with its "
+         f"{round(1280 * args.scale)}x{round(720 * args.scale)}, {look}"
+         + (f" at {args.spp} spp" if args.renderer != "mujoco" else "") + ", each with its "
          "reference pass (the same cameras over the empty workspace, independent render noise). Scores per view, "
          "averaged: union IoU against the glass objects' masks (opaque objects are background), precision and "
          "recall of that union, and IoU against every object's mask (rw2 and rw5 hold an opaque cup).", "",
