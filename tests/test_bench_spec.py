@@ -55,7 +55,7 @@ def test_grid_is_trial_major_and_methods_share_seeds():
 def test_unknown_names_list_valid_choices():
     with pytest.raises(UnknownNameError, match="valid choices: lab, rw, syn, syn_hard"):
         build_grid(BenchConfig(suite="nope"))
-    with pytest.raises(UnknownNameError, match="depth, depth_fusion, oracle, torm"):
+    with pytest.raises(UnknownNameError, match="depth, depth_fusion, oracle, package.module:callable, torm"):
         BenchConfig(methods=("torm", "lidar"))
     with pytest.raises(UnknownNameError, match="rw1"):
         build_grid(BenchConfig(suite="rw", scenarios=("syn1",)))
