@@ -265,6 +265,7 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     from tqdm import tqdm
 
     torch.set_num_threads(cfg.threads)
+    cv2.setNumThreads(1)  # the augmentation's OpenCV calls run between torch ops: its own pool only competes
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)  # weight init only; data order comes from the explicit Generator below
