@@ -146,6 +146,34 @@ class EnvCameras:
             return wrist_pose(T, self.approach_axis, self.closing_axis, self.mount)
         raise UnknownNameError("camera", name, CAMERA_NAMES)
 
+    def K(self, name: str) -> np.ndarray:
+        """(3, 3) pinhole intrinsics (px) of camera ``name`` at the observation size (square pixels, centred)."""
+        f = 0.5 * self.height / math.tan(math.radians(self._fovy(name)) / 2.0)
+        return np.array([[f, 0.0, self.width / 2.0], [0.0, f, self.height / 2.0], [0.0, 0.0, 1.0]])
+
+    def pointcloud(self, names: Sequence[str], n_points: int, rng: np.random.Generator
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """(``xyz`` (n, 3) float32 world frame m, ``rgb`` (n, 3) uint8): the cameras' depth pixels with a return
+        (z < MAX_DEPTH) back-projected through pixel centres and their colours, ``n_points`` drawn with ``rng``
+        (with replacement when fewer; zeros when no pixel has a return)."""
+        imgs = self.render(names, depth=True)
+        pts, cols = [], []
+        vv, uu = np.mgrid[0:self.height, 0:self.width]
+        for name in names:
+            z = imgs[f"{name}_depth"].astype(np.float64)
+            ok = (z > 0) & (z < 0.999 * MAX_DEPTH)
+            K, T = self.K(name), self.pose(name)
+            x = (uu[ok] + 0.5 - K[0, 2]) / K[0, 0] * z[ok]
+            y = (vv[ok] + 0.5 - K[1, 2]) / K[1, 1] * z[ok]
+            pts.append(np.stack([x, y, z[ok]], axis=1) @ T[:3, :3].T + T[:3, 3])
+            cols.append(imgs[f"{name}_rgb"][ok])
+        xyz = np.concatenate(pts) if pts else np.zeros((0, 3))
+        rgb = np.concatenate(cols) if cols else np.zeros((0, 3), np.uint8)
+        if not len(xyz):
+            return np.zeros((n_points, 3), np.float32), np.zeros((n_points, 3), np.uint8)
+        idx = rng.choice(len(xyz), size=n_points, replace=len(xyz) < n_points)
+        return xyz[idx].astype(np.float32), rgb[idx].astype(np.uint8)
+
     def _fovy(self, name: str) -> float:
         if name == "scene":
             return SCENE_FOVY_DEG

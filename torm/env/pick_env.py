@@ -25,7 +25,10 @@ quaternion wxyz in the world frame, ``gripper_width`` (1,) m, and per camera in 
 ``<cam>_rgb`` (H, W, 3) uint8 and, with ``depth``, ``<cam>_depth`` (H, W) float32 z-depth in m
 (cameras: ``overview`` fixed, ``wrist`` rigidly mounted behind the TCP; see :mod:`torm.env.cameras`).
 With ``privileged_state`` the target object's position (3,) m and quaternion wxyz (4,) are added
-(``object_pos``, ``object_quat``) for state-based baselines.
+(``object_pos``, ``object_quat``) for state-based baselines. ``obs_mode`` names these the way ManiSkill does:
+``state`` (no cameras), ``rgb``, ``rgbd``, ``pointcloud`` (``pointcloud_xyz`` (N, 3) m world frame +
+``pointcloud_rgb`` (N, 3) uint8 back-projected from the cameras' depth, N = ``pointcloud_points``, sampled with the
+env's seeded RNG); ``control_mode="pd_ee_delta_pose"`` names the action.
 
 Success (the paper's test, Sec. IV-E, judged from the true object pose): with ``success="lift"`` (default)
 the target object is *lifted*: raised at least ``lift_height - height_tolerance`` (0.24 m) above its rest
@@ -72,6 +75,10 @@ from torm.execution.success import SuccessCriteria
 log = logging.getLogger(__name__)
 
 SUCCESS_MODES = ("lift", "lift_translate")
+#: observation modes, as ManiSkill names them (``obs_mode``); None keeps ``cameras`` / ``depth`` as configured
+OBS_MODES = ("state", "rgb", "rgbd", "pointcloud")
+#: control modes (``control_mode``), as ManiSkill names them: the end-effector delta pose + gripper of this env
+CONTROL_MODES = ("pd_ee_delta_pose",)
 ACTION_MODES = ("normalized", "raw")
 OUT_OF_BOUNDS = ("clip", "raise")
 #: Observation bounds: positions within this many metres of the base; joint speeds within this factor x limits.
@@ -111,6 +118,13 @@ class PickEnvConfig:
         success_reward: reward on the success step.
         reward_shaping: add the dense shaping terms.
         w_reach, w_grasp, w_lift, w_translate: shaping weights.
+        obs_mode: ManiSkill's observation vocabulary: ``state`` (proprioception only, no cameras), ``rgb``
+            (``cameras`` without depth), ``rgbd`` (with depth), ``pointcloud`` (``pointcloud_xyz`` (N, 3) m world
+            frame and ``pointcloud_rgb`` (N, 3) uint8 from the cameras' depth instead of images); None = as
+            ``cameras`` and ``depth`` say.
+        control_mode: ``pd_ee_delta_pose`` (the only one: a TCP delta pose and a gripper command, position-
+            controlled joints), ManiSkill's name for what the action is.
+        pointcloud_points: N of the ``pointcloud`` observation.
     """
 
     scenario: str = "rw1"
@@ -142,8 +156,23 @@ class PickEnvConfig:
     w_grasp: float = 0.25
     w_lift: float = 0.5
     w_translate: float = 0.25
+    obs_mode: str | None = None
+    control_mode: str = "pd_ee_delta_pose"
+    pointcloud_points: int = 1024
 
     def __post_init__(self) -> None:
+        if self.obs_mode is not None and self.obs_mode not in OBS_MODES:
+            raise UnknownNameError("obs_mode", self.obs_mode, OBS_MODES)
+        if self.control_mode not in CONTROL_MODES:
+            raise UnknownNameError("control_mode", self.control_mode, CONTROL_MODES)
+        if self.pointcloud_points < 1:
+            raise ConfigError(f"PickEnvConfig.pointcloud_points must be >= 1, got {self.pointcloud_points}")
+        if self.obs_mode == "state":
+            object.__setattr__(self, "cameras", ())
+        elif self.obs_mode is not None:
+            if not tuple(self.cameras):
+                raise ConfigError(f"obs_mode {self.obs_mode!r} needs at least one camera in cameras")
+            object.__setattr__(self, "depth", self.obs_mode in ("rgbd", "pointcloud"))
         cams = tuple(self.cameras)
         bad = [c for c in cams if c not in CAMERA_NAMES]
         if bad:
@@ -212,10 +241,15 @@ class TormPickEnv(gym.Env):
             "gripper_width": spaces.Box(0.0, float(self._rcfg.gripper.geometry.max_opening) + 0.01, (1,), np.float32),
         }
         H, W = cfg.image_size
-        for cam in cfg.cameras:
-            obs[f"{cam}_rgb"] = spaces.Box(0, 255, (H, W, 3), np.uint8)
-            if cfg.depth:
-                obs[f"{cam}_depth"] = spaces.Box(0.0, MAX_DEPTH, (H, W), np.float32)
+        if cfg.obs_mode == "pointcloud":
+            N = cfg.pointcloud_points
+            obs["pointcloud_xyz"] = spaces.Box(-POSITION_BOUND, POSITION_BOUND, (N, 3), np.float32)
+            obs["pointcloud_rgb"] = spaces.Box(0, 255, (N, 3), np.uint8)
+        else:
+            for cam in cfg.cameras:
+                obs[f"{cam}_rgb"] = spaces.Box(0, 255, (H, W, 3), np.uint8)
+                if cfg.depth:
+                    obs[f"{cam}_depth"] = spaces.Box(0.0, MAX_DEPTH, (H, W), np.float32)
         if cfg.privileged_state:
             obs["object_pos"] = spaces.Box(-POSITION_BOUND, POSITION_BOUND, (3,), np.float32)
             obs["object_quat"] = spaces.Box(-1.0, 1.0, (4,), np.float32)
@@ -465,7 +499,10 @@ class TormPickEnv(gym.Env):
             "tcp_pose": np.concatenate([T[:3, 3], _quat_wxyz(T[:3, :3])]).astype(np.float32),
             "gripper_width": np.array([self._backend.gripper.width()], np.float32),
         }
-        if self._cams is not None:
+        if self._cams is not None and self.config.obs_mode == "pointcloud":
+            xyz, rgb = self._cams.pointcloud(self.config.cameras, self.config.pointcloud_points, self.np_random)
+            obs.update(pointcloud_xyz=xyz, pointcloud_rgb=rgb)
+        elif self._cams is not None:
             obs.update(self._cams.render(self.config.cameras, depth=self.config.depth))
         if self.config.privileged_state:
             To = self._world.object_pose(self.config.target_object)
