@@ -276,7 +276,7 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     ck = workdir / "checkpoint.pt"
     if ck.exists():
         saved = torch.load(ck, map_location="cpu", weights_only=False)
-        if saved.get("config") != cfg.to_dict():
+        if not same_config(saved.get("config"), cfg):
             raise ConfigError(f"{ck} was written with another training config; use another workdir or delete it")
         net.load_state_dict(saved["model"])
         opt.load_state_dict(saved["optimizer"])
@@ -354,6 +354,15 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
             "best_step": state["best_step"], "history": state["history"]}
 
 
+def same_config(saved: dict[str, Any] | None, cfg: TrainConfig) -> bool:
+    """Whether a checkpoint's stored config is ``cfg``: fields it lacks (added to :class:`TrainConfig` after it was
+    written) count at their defaults, which is what that run used."""
+    if saved is None:
+        return False
+    defaults = TrainConfig().to_dict()
+    return {**defaults, **saved} == {**defaults, **cfg.to_dict()}
+
+
 def _load_pt(net: SegUNet, init: Path) -> None:
     saved = torch.load(init, map_location="cpu", weights_only=False)
     try:
@@ -369,7 +378,7 @@ def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
     if not ck.exists():
         raise ConfigError(f"{ck} does not exist; train first")
     saved = torch.load(ck, map_location="cpu", weights_only=False)
-    if saved.get("config") != cfg.to_dict():
+    if not same_config(saved.get("config"), cfg):
         raise ConfigError(f"{ck} was written with another training config")
     st = saved["state"]
     return {"steps": st["step"], "wall_s": st["wall_s"], f"best_val_{cfg.select_on}": st["best_iou"],
