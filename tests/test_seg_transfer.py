@@ -128,8 +128,7 @@ def test_glass_only_labels_make_opaque_objects_background(tmp_path):
         assert not np.isin(z["mask"], opaque_ids).any()
         assert np.array_equal(np.isin(z["mask"], glass_ids), np.isin(z_all["mask"], glass_ids))
         break
-    if not found:
-        pytest.skip("no opaque object drawn in 8 shards")
+    assert found, "no scene of these 8 shards holds an opaque object beside glass"
 
 
 def test_a_pbr_scene_with_look_alikes_labels_only_glass_and_occludes_exactly(tmp_path):

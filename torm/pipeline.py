@@ -286,7 +286,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
                    method_options_sha=options_hash(dict(config.method_options)))
     if config.planner != "antipodal":  # which planner, which version, with which options
         from torm.methods.planners import load_planner
-        from torm.methods.planners import options_hash as planner_hash
+        from torm.methods.registry import options_hash as planner_hash
 
         pl = load_planner(config.planner, dict(config.planner_options))
         ctx.update(planner=config.planner, planner_version=str(pl.version),

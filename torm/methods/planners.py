@@ -14,12 +14,8 @@ called with ``planner_options``).
 
 from __future__ import annotations
 
-import hashlib
-import importlib
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from importlib import metadata
 from typing import Any
 
 import numpy as np
@@ -93,24 +89,9 @@ def load_planner(name: str, options: dict[str, Any] | None = None) -> Any:
         p = _OnnxGraspNet(**options)
         p.version = torm.__version__
         return p
-    if ":" in name:
-        mod, _, attr = name.partition(":")
-        try:
-            factory: Any = importlib.import_module(mod)
-            for part in attr.split("."):
-                factory = getattr(factory, part)
-        except (ImportError, AttributeError) as exc:
-            raise PluginError(f"planner {name!r}: cannot import {attr!r} from {mod!r} ({exc})") from exc
-    else:
-        eps = {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
-        if name not in eps:
-            from torm.errors import UnknownNameError
+    from torm.methods.registry import resolve_factory
 
-            raise UnknownNameError("planner", name, [*BUILTIN_PLANNERS, *sorted(eps), "package.module:callable"])
-        try:
-            factory = eps[name].load()
-        except Exception as exc:
-            raise PluginError(f"planner {name!r}: its entry point fails to load: {exc}") from exc
+    factory, _ = resolve_factory(name, ENTRY_POINT_GROUP, "planner", tuple(BUILTIN_PLANNERS))
     try:
         planner = factory(**options) if callable(factory) else factory
     except TypeError as exc:
@@ -123,20 +104,10 @@ def load_planner(name: str, options: dict[str, Any] | None = None) -> Any:
 
 def check_planner_name(name: str) -> None:
     """Raise unless ``name`` is a built-in planner, an installed ``torm.planners`` entry point or importable."""
-    if name in BUILTIN_PLANNERS:
-        return
-    if ":" in name:
-        mod = name.partition(":")[0]
-        try:
-            importlib.import_module(mod)
-        except ImportError as exc:
-            raise PluginError(f"planner {name!r}: cannot import module {mod!r} ({exc})") from exc
-        return
-    eps = {ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
-    if name not in eps:
-        from torm.errors import UnknownNameError
+    if name not in BUILTIN_PLANNERS:
+        from torm.methods.registry import resolve_factory
 
-        raise UnknownNameError("planner", name, [*BUILTIN_PLANNERS, *sorted(eps), "package.module:callable"])
+        resolve_factory(name, ENTRY_POINT_GROUP, "planner", tuple(BUILTIN_PLANNERS))
 
 
 def validate_grasps(planner: str, grasps: Any, point_clouds: Sequence[ObjectPointCloud], max_opening: float,
@@ -167,5 +138,3 @@ def validate_grasps(planner: str, grasps: Any, point_clouds: Sequence[ObjectPoin
     return [list(gl) for gl in grasps]
 
 
-def options_hash(options: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()[:12]

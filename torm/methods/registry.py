@@ -54,8 +54,11 @@ def _entry_points() -> dict[str, metadata.EntryPoint]:
     return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
 
 
-def _factory(name: str) -> tuple[Any, str]:
-    """(factory, source) of a plug-in name."""
+def resolve_factory(name: str, group: str = ENTRY_POINT_GROUP, kind: str = "method",
+                    builtins: tuple[str, ...] = tuple(BUILTINS)) -> tuple[Any, str]:
+    """(factory, source) of a plug-in name: ``package.module:callable`` imported, or the entry point ``name`` of
+    ``group`` loaded. ``kind`` and ``builtins`` only shape the error messages (UnknownNameError lists the valid
+    names; PluginError says what failed to import or load)."""
     if ":" in name:
         mod, _, attr = name.partition(":")
         try:
@@ -63,21 +66,25 @@ def _factory(name: str) -> tuple[Any, str]:
             for part in attr.split("."):
                 obj = getattr(obj, part)
         except (ImportError, AttributeError) as exc:
-            raise PluginError(f"method {name!r}: cannot import {attr!r} from module {mod!r} ({exc}); give "
+            raise PluginError(f"{kind} {name!r}: cannot import {attr!r} from module {mod!r} ({exc}); give "
                               "package.module:callable of an importable factory") from exc
         return obj, "module:callable"
-    eps = _entry_points()
+    eps = {ep.name: ep for ep in metadata.entry_points(group=group)}
     if name not in eps:
         from torm.errors import UnknownNameError
 
-        raise UnknownNameError("method", name, [*BUILTINS, *sorted(eps), "package.module:callable"])
+        raise UnknownNameError(kind, name, [*builtins, *sorted(eps), "package.module:callable"])
     ep = eps[name]
     try:
         obj = ep.load()
     except Exception as exc:  # a broken plug-in must not look like a missing one
-        raise PluginError(f"method {name!r}: its entry point {ep.value!r} fails to load: {exc}") from exc
+        raise PluginError(f"{kind} {name!r}: its entry point {ep.value!r} fails to load: {exc}") from exc
     dist = getattr(ep, "dist", None)
     return obj, f"entry point ({dist.name if dist else ep.value})"
+
+
+def _factory(name: str) -> tuple[Any, str]:
+    return resolve_factory(name)
 
 
 def load_method(name: str, options: dict[str, Any] | None = None) -> Any:
