@@ -286,9 +286,24 @@ def _cameras(recipe: DataRecipe, split: str, world: Any, rng: np.random.Generato
     return Ts, K_v, recipe.width, recipe.height
 
 
+def _scenes(recipe: DataRecipe, split: str, shard: int) -> Any:
+    """Every scene of a shard that builds, as (seed, rng, world, objects, spacing, fixture, T_world_cam, K, width,
+    height, look): the draws in the order the shard and its reference pass both make them."""
+    from torm.segmentation.training.render import SceneLook
+
+    renderer = shard_renderer(recipe, split, shard)
+    for j in range(recipe.scenes_per_shard):
+        seed, rng, world, objs, spacing, fixture = _build_scene(recipe, split, shard, j)
+        if world is None:
+            continue
+        Ts, K_v, w, h = _cameras(recipe, split, world, rng)
+        look = SceneLook.draw(recipe, rng) if renderer != "mujoco" else SceneLook()
+        yield seed, rng, world, objs, spacing, fixture, Ts, K_v, w, h, look
+
+
 def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Path:
     """Render shard ``shard`` of ``split`` into ``root`` unless it exists; returns its path."""
-    from torm.segmentation.training.render import SceneLook, render_scene
+    from torm.segmentation.training.render import render_scene
 
     path = shard_path(root, split, shard)
     if path.exists():
@@ -296,12 +311,7 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
     path.parent.mkdir(parents=True, exist_ok=True)
     renderer = shard_renderer(recipe, split, shard)
     rgbs, masks, poses, Ks, scene_idx, meta = [], [], [], [], [], []
-    for j in range(recipe.scenes_per_shard):
-        seed, rng, world, objs, spacing, fixture = _build_scene(recipe, split, shard, j)
-        if world is None:
-            continue
-        Ts, K_v, w, h = _cameras(recipe, split, world, rng)
-        look = SceneLook.draw(recipe, rng) if renderer != "mujoco" else SceneLook()
+    for seed, rng, world, objs, spacing, fixture, Ts, K_v, w, h, look in _scenes(recipe, split, shard):
         rgb, mask, look_info = render_scene(renderer, world, Ts, K_v, w, h, rng, recipe.spp, look)
         if not recipe.label_opaque:  # only glass is labelled: opaque objects become background
             for o in world.objects:
@@ -335,7 +345,7 @@ def generate_reference_shard(recipe: DataRecipe, split: str, shard: int, root: P
     probability ``drop_distractors`` (things that arrive with the objects). Writes ``reference_rgb`` (N, H, W, 3)
     uint8 to :func:`reference_path`; raises when a rebuilt scene's cameras differ from the shard's."""
     from sim.reference_pass import objects_hidden
-    from torm.segmentation.training.render import SceneLook, render_scene
+    from torm.segmentation.training.render import render_scene
 
     path = reference_path(root, split, shard)
     if path.exists():
@@ -346,12 +356,7 @@ def generate_reference_shard(recipe: DataRecipe, split: str, shard: int, root: P
     z = np.load(src)
     renderer = shard_renderer(recipe, split, shard)
     refs, poses = [], []
-    for j in range(recipe.scenes_per_shard):
-        seed, rng, world, _objs, _spacing, _fixture = _build_scene(recipe, split, shard, j)
-        if world is None:
-            continue
-        Ts, K_v, w, h = _cameras(recipe, split, world, rng)
-        look = SceneLook.draw(recipe, rng) if renderer != "mujoco" else SceneLook()
+    for _seed, rng, world, _objs, _spacing, _fixture, Ts, K_v, w, h, look in _scenes(recipe, split, shard):
         look = dataclasses.replace(look, reference=True, drop_distractors=drop_distractors)
         with objects_hidden(world):
             rgb, _mask, _info = render_scene(renderer, world, Ts, K_v, w, h, rng, recipe.spp, look)
