@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from torm import config
-from torm.errors import ConfigError, UnknownNameError
+from torm.errors import UnknownNameError
 from torm.pipeline import TrialConfig, _capture, make_backend, perceive, trial_context
 
 
@@ -72,5 +72,5 @@ def test_context_names_the_depth_model_and_methods_are_validated():
     assert ctx["depth_model"] == "statistical" and ctx["segmenter"] == "gt" and ctx["method"] == "depth_fusion"
     with pytest.raises(UnknownNameError):
         config.from_dict(TrialConfig, {"capture": {"depth_model": "lidar"}})
-    with pytest.raises(ConfigError, match="depth_fusion"):
+    with pytest.raises(UnknownNameError, match="depth_fusion.*package.module:callable"):
         config.from_dict(TrialConfig, {"method": "graspnet"})
