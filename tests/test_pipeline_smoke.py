@@ -38,9 +38,10 @@ def test_bad_trial_configs_name_the_problem():
     from torm import config as cfgmod
     from torm.pipeline import TrialConfig
 
-    with pytest.raises(ConfigError, match=r"'magic' is not one of \['torm', 'depth', 'depth_fusion', 'oracle'\]"):
+    with pytest.raises(UnknownNameError, match="'magic'; valid choices: depth, depth_fusion, oracle, "
+                                               "package.module:callable, torm"):
         cfgmod.from_dict(TrialConfig, {}, ["method=magic"])
-    with pytest.raises(UnknownNameError, match="valid choices: grounded_sam, gt, learned, noisy"):
+    with pytest.raises(UnknownNameError, match="valid choices: difference, grounded_sam, gt, learned, noisy"):
         cfgmod.from_dict(TrialConfig, {}, ["segmentation.segmenter=sam3"])
     with pytest.raises(ConfigError, match="unknown key"):
         cfgmod.from_dict(TrialConfig, {}, ["reconstruction.grid_rez=3"])
