@@ -119,6 +119,16 @@ def masks_are_ground_truth(capture: Capture) -> bool:
     return capture.has_masks and str(capture.metadata.get(MASK_SOURCE_KEY, "")).endswith("(ground truth)")
 
 
+def score_against_capture(masks_vxhxw: np.ndarray, capture: Capture) -> dict[str, Any]:
+    """``{"quality", "quality_reference"}`` of predicted masks against the capture's own masks, named by their source
+    (never assumed ground truth); ``{}`` when the capture has no masks."""
+    if not capture.has_masks:
+        return {}
+    from torm.segmentation.quality import mask_quality
+
+    return {"quality": mask_quality(masks_vxhxw, capture.masks()), "quality_reference": mask_reference(capture)}
+
+
 def mask_reference(capture: Capture) -> str:
     """How to name a capture's masks when scoring against them: ``ground truth`` only for the simulator's."""
     if masks_are_ground_truth(capture):

@@ -38,11 +38,10 @@ import cv2
 import numpy as np
 
 from torm.errors import CaptureError, ConfigError, ModelFileError
-from torm.segmentation.base import Detection, SegmentationResult, Segmenter, mask_reference
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter, score_against_capture
 from torm.segmentation.boxes import DecodedBoxes, decode_grounding
 from torm.segmentation.onnx_models import BoundSession, TensorSpec, open_session, static_dims
 from torm.segmentation.postprocess import clean_mask, compose_instances
-from torm.segmentation.quality import mask_quality
 from torm.segmentation.tokenizer import TextInputs, WordPieceTokenizer, grounding_text_inputs
 from torm.types import Capture
 
@@ -343,7 +342,5 @@ class GroundedSAMSegmenter(Segmenter):
         info: dict[str, Any] = {"segmenter": self.name, "box_source": self.config.box_source,
                                 "prompt": self.config.prompt if self.boxer is None else None,
                                 "providers": self.sam_encoder.session.get_providers()}
-        if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
-            info["quality"] = mask_quality(out, capture.masks())
-            info["quality_reference"] = mask_reference(capture)
+        info.update(score_against_capture(out, capture))
         return SegmentationResult(out, tuple(dets), timings, info)

@@ -34,10 +34,9 @@ import cv2
 import numpy as np
 
 from torm.errors import CaptureError, ConfigError, ModelFileError
-from torm.segmentation.base import Detection, SegmentationResult, Segmenter, mask_reference
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter, score_against_capture
 from torm.segmentation.instances import instances_from_maps
 from torm.segmentation.onnx_models import TensorSpec, open_session
-from torm.segmentation.quality import mask_quality
 from torm.types import Capture
 
 log = logging.getLogger(__name__)
@@ -285,9 +284,7 @@ class LearnedSegmenter(Segmenter):
                                 "model_fingerprint": model_fingerprint(self.config.model_path), "domain": domain,
                                 "model_renderer": self.card.get("data", {}).get("renderer"),
                                 "postprocess": dict(self.postprocess)}
-        if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
-            info["quality"] = mask_quality(out, capture.masks())
-            info["quality_reference"] = mask_reference(capture)
+        info.update(score_against_capture(out, capture))
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
 
 

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from torm.errors import CaptureError, ConfigError
-from torm.segmentation.base import Detection, SegmentationResult, Segmenter
+from torm.segmentation.base import Detection, SegmentationResult, Segmenter, score_against_capture
 from torm.types import Capture
 
 log = logging.getLogger(__name__)
@@ -177,10 +177,5 @@ class DifferenceSegmenter(Segmenter):
             dets.append(tuple(d))
         info: dict[str, Any] = {"segmenter": self.name, "threshold": self.config.threshold}
         out = np.stack(masks)
-        if capture.has_masks:  # scored against the capture's masks, named by their source (never assumed GT)
-            from torm.segmentation.base import mask_reference
-            from torm.segmentation.quality import mask_quality
-
-            info["quality"] = mask_quality(out, capture.masks())
-            info["quality_reference"] = mask_reference(capture)
+        info.update(score_against_capture(out, capture))
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
