@@ -30,3 +30,18 @@ def test_bench_yaml_example_is_a_valid_bench_config(tmp_path):
                       timeout_s=args.timeout, record=args.record, overrides=tuple(args.overrides))
     assert cfg.trials == 10 and cfg.methods == ("torm", "depth", "oracle") and cfg.record == "failures"
     assert "capture.depth_model=statistical" in cfg.overrides
+
+
+@pytest.mark.parametrize("package", ["torm_plane_fill", "torm_scene_graspnet"])
+def test_example_plugin_packages_pass_their_own_tests(package):
+    """Each example plug-in is an installable package with its own tests; they run against this torm."""
+    import os
+    import subprocess
+    import sys
+
+    root = ROOT / "examples" / package
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root / "src"), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(root / "tests")],
+                          cwd=root, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    assert " passed" in proc.stdout

@@ -30,6 +30,24 @@ def installed_plane_fill(tmp_path, monkeypatch):
     sys.modules.pop("torm_plane_fill", None)
 
 
+@pytest.fixture
+def installed_scene_graspnet(tmp_path, monkeypatch):
+    """The example planner plug-in installed (dist-info with its ``torm.planners`` entry point) and a tiny model."""
+    src = Path(__file__).resolve().parents[1] / "examples" / "torm_scene_graspnet" / "src"
+    site = tmp_path / "site_planner"
+    dist = site / "torm_scene_graspnet-0.1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: torm-scene-graspnet\nVersion: 0.1.0\n")
+    (dist / "entry_points.txt").write_text("[torm.planners]\nscene_graspnet = torm_scene_graspnet:SceneGraspNet\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.syspath_prepend(str(src))
+    from torm_scene_graspnet.tiny_model import build_tiny_model
+
+    yield build_tiny_model(tmp_path / "tiny_scene_graspnet.onnx")
+    for mod in ("torm_scene_graspnet", "torm_scene_graspnet.tiny_model"):
+        sys.modules.pop(mod, None)
+
+
 def test_registry_lists_builtins_and_installed_plugins_and_names_bad_ones(installed_plane_fill):
     from torm.errors import UnknownNameError
     from torm.methods import list_methods, load_method, method_info
@@ -130,3 +148,39 @@ def test_a_planner_plugin_plans_a_trial_and_the_row_names_it():
     rec = run_trial(cfg)
     assert rec["context"]["planner"] == "plugin_methods:TopDown" and rec["context"]["planner_version"] == "0.0.1"
     assert rec["n_objects"] == 1 and rec["objects"][0]["outcome"] not in ("error", None)
+
+
+@pytest.mark.slow
+def test_plugins_run_on_the_ray_engine_like_on_the_pool(local_ray, tmp_path):
+    """Method and planner plug-ins by module:callable on Ray: their rows name them; a crashing plug-in is one
+    error row and the other trials go on."""
+    from torm.bench import BenchConfig, run_benchmark
+    from torm.bench.results import read_results
+
+    kw = {"suite": "rw", "scenarios": ("rw1",), "trials": 1, "timeout_s": 300.0, "workers": 2, "engine": "ray",
+          "methods": ("plugin_methods:Returns", "plugin_methods:Crashing"),
+          "overrides": ("capture.n_views=6", "capture.scale=0.25", "planner=plugin_methods:TopDown")}
+    s = run_benchmark(BenchConfig(**kw), tmp_path / "run", progress=False)
+    assert s["ran"] == 2
+    rows = {r["method"]: r for r in read_results(tmp_path / "run" / "results.jsonl").rows}
+    ok, bad = rows["plugin_methods:Returns"], rows["plugin_methods:Crashing"]
+    assert ok["run"]["engine"] == "ray" and ok["status"] == "ok", ok.get("message")
+    assert ok["context"]["method_version"] == "0.0.1" and ok["context"]["method_source"] == "module:callable"
+    assert ok["context"]["planner"] == "plugin_methods:TopDown" and ok["context"]["planner_version"] == "0.0.1"
+    assert bad["status"] != "ok" and "this plug-in always fails" in str(bad.get("message", bad))
+
+
+@pytest.mark.slow
+def test_an_installed_planner_plugin_plans_a_trial_and_its_row_names_it(installed_scene_graspnet):
+    """The example planner package, found through its entry point, plans a real trial (oracle clouds)."""
+    from torm import config
+    from torm.pipeline import TrialConfig, run_trial
+
+    cfg = config.from_dict(TrialConfig, {"scenario": "rw1", "method": "oracle", "planner": "scene_graspnet",
+                                         "planner_options": {"model_path": str(installed_scene_graspnet)}},
+                           ["capture.n_views=2", "capture.scale=0.25"])
+    rec = run_trial(cfg)
+    ctx = rec["context"]
+    assert (ctx["planner"], ctx["planner_version"]) == ("scene_graspnet", "0.1.0")
+    assert rec["n_objects"] == 1 and rec["objects"][0]["outcome"] not in ("error", None)
+    assert rec["attempts"] and rec["attempts"][0]["n_candidates"] > 0, rec["attempts"]

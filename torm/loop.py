@@ -23,15 +23,10 @@ from torm.config import to_dict
 from torm.errors import CaptureError, ConfigError, ExecutionError, ReconstructionError
 from torm.execution.pick import execute_pick, free_directions
 from torm.execution.success import Outcome
-from torm.grasp.planner import plan_grasps
 from torm.perception import (
     Perception,
-    depth_point_clouds,
     most_top_down_pose,
     most_top_down_view,
-    oracle_point_clouds,
-    perceive_depth_fusion,
-    perceive_torm,
 )
 from torm.types import Capture, ObjectPointCloud, TriMesh
 
@@ -54,14 +49,10 @@ SAME_OBJECT_XY = 0.03
 
 
 def _segmenter(config: TrialConfig) -> Any:
-    from torm.segmentation import make_segmenter
+    """The segmenter ``config.segmentation`` names, built (:func:`torm.methods.builtins.segmenter_for`)."""
+    from torm.methods.builtins import segmenter_for
 
-    s = config.segmentation
-    opts = dict(s.options)
-    if s.segmenter == "noisy":
-        opts.setdefault("preset", s.preset)
-        opts.setdefault("seed", config.seed)
-    return make_segmenter(s.segmenter, opts or None)
+    return segmenter_for(config)
 
 
 def _gripper(backend: Any):
@@ -171,9 +162,12 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
         oracle_meshes: the true object meshes, for ``method="oracle"`` only (a perception oracle the harness
             grants explicitly in simulation; the real backend has none).
     """
-    from torm.methods import is_builtin, load_method
+    from torm.methods import MethodContext, is_builtin, load_method
+    from torm.methods.builtins import builtin_method
 
     plugin = None if is_builtin(config.method) else load_method(config.method, dict(config.method_options))
+    # a built-in is built before capturing so that a misconfigured one (oracle on the real arm) costs no capture
+    builtin = builtin_method(config, oracle_meshes) if plugin is None else None
     t = time.perf_counter()
     capture, cap_info = _capture(config, backend, rgb, plugin)
     cap_info["capture_s"] = time.perf_counter() - t
@@ -183,28 +177,18 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     capture = replace(capture, table_height=table_z)
     n_points = config.reconstruction.points_per_object
     t = time.perf_counter()
-    if config.method == "torm":
-        per = perceive_torm(capture, _segmenter(config), config.reconstruction)
-        timings["segmentation"] = timings.get("segmentation", 0.0) + per.info["segmentation_s"]
-        timings["reconstruction"] = timings.get("reconstruction", 0.0) + per.info["reconstruction_s"]
-    elif config.method == "depth":
-        per = Perception(depth_point_clouds(capture, 0, n_points, rng), [], {"view": cap_info["depth_view"]})
-        per.meshes = [None] * len(per.point_clouds)
-        per.info["baseline"] = "single-view depth, symmetric completion"
-        timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
-    elif config.method == "depth_fusion":
-        per = perceive_depth_fusion(capture, config.fusion, n_points, rng)
-        timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
-    elif plugin is not None:
-        per = perceive_plugin(plugin, config, capture, table_z, n_points, rng)
-        timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
+    if builtin is not None:  # the built-ins implement the plug-in interface; run() keeps their diagnostics
+        ctx = MethodContext(n_points=n_points, rng=rng, table_height=table_z,
+                            workspace_bounds=_workspace_bounds(capture, table_z))
+        per = builtin.run(capture, ctx)
     else:
-        if oracle_meshes is None:
-            raise ConfigError("method 'oracle' needs the simulator's true meshes (a simulated backend); the real "
-                              "backend has none: use method=torm")
-        clouds, meshes = oracle_point_clouds(oracle_meshes(), n_points, rng)
-        per = Perception(clouds, meshes, {})
-        timings["reconstruction"] = timings.get("reconstruction", 0.0) + time.perf_counter() - t
+        per = perceive_plugin(plugin, config, capture, table_z, n_points, rng)
+    if "segmentation_s" in per.info:
+        timings["segmentation"] = timings.get("segmentation", 0.0) + per.info["segmentation_s"]
+    recon_s = per.info.get("reconstruction_s", time.perf_counter() - t - per.info.get("segmentation_s", 0.0))
+    timings["reconstruction"] = timings.get("reconstruction", 0.0) + recon_s
+    if "depth_view" in cap_info:
+        per.info["view"] = cap_info["depth_view"]
     per.info["capture"] = capture
     per.info["capture_info"] = cap_info
     per.info["table"] = table_info
@@ -217,6 +201,13 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
 DEFAULT_WORKSPACE = ((0.15, -0.45, -0.03), (0.95, 0.45, 0.40))
 
 
+def _workspace_bounds(capture: Capture, table_z: float) -> np.ndarray:
+    """(2, 3) m, world: the capture's declared workspace box, else :data:`DEFAULT_WORKSPACE` above the table."""
+    if capture.workspace_bounds is not None:
+        return np.asarray(capture.workspace_bounds, np.float64)
+    return np.asarray(DEFAULT_WORKSPACE, np.float64) + np.array([0.0, 0.0, table_z])
+
+
 def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z: float, n_points: int,
                     rng: np.random.Generator) -> Perception:
     """Run a plug-in method (:mod:`torm.methods`): validate its output, estimate missing normals (PCA, oriented to
@@ -224,10 +215,7 @@ def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z:
     from torm.methods import MethodContext, validate_estimates
     from torm.perception import _estimate_normals, _resample
 
-    if capture.workspace_bounds is not None:
-        bounds = np.asarray(capture.workspace_bounds, np.float64)
-    else:
-        bounds = np.asarray(DEFAULT_WORKSPACE, np.float64) + np.array([0.0, 0.0, table_z])
+    bounds = _workspace_bounds(capture, table_z)
     ctx = MethodContext(n_points=n_points, rng=rng, table_height=table_z, workspace_bounds=bounds,
                         options=dict(config.method_options))
     estimates = validate_estimates(config.method, method.perceive(capture, ctx), bounds)
@@ -246,7 +234,8 @@ def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z:
 
 def plan_with_plugin(config: TrialConfig, per: Perception, table_z: float, gripper: Any, rng: np.random.Generator,
                      obstacles: np.ndarray | None) -> list[list[Any]]:
-    """Grasps from the trial's planner plug-in (:mod:`torm.methods.planners`), checked before execution."""
+    """Grasps from the trial's planner (:mod:`torm.methods.planners`: the built-in ``antipodal`` and plug-ins
+    through the same interface), checked before execution (:func:`~torm.methods.planners.validate_grasps`)."""
     from torm.methods.planners import PlannerContext, load_planner, validate_grasps
 
     planner = load_planner(config.planner, dict(config.planner_options))
@@ -305,10 +294,7 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
             observer.perceived(per.point_clouds)
         table_z = float(per.info["capture"].table_height)
         t = time.perf_counter()
-        if config.planner == "antipodal":
-            grasps = plan_grasps(per.point_clouds, per.meshes or None, table_z, gripper, config.grasp, rng, obstacles)
-        else:
-            grasps = plan_with_plugin(config, per, table_z, gripper, rng, obstacles)
+        grasps = plan_with_plugin(config, per, table_z, gripper, rng, obstacles)  # built-in or plug-in alike
         timings["grasp_planning"] = timings.get("grasp_planning", 0.0) + time.perf_counter() - t
         log.info("grasp planning: %d candidates for %d objects", sum(len(g) for g in grasps), len(grasps))
         if recorder is not None:
