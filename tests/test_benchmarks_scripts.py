@@ -161,3 +161,17 @@ def test_learned_segmentation_benchmark_reports_the_fixture_split(tmp_path: Path
     assert list(doc["splits"]) == ["test_layouts", "test_shapes", "test_fixtures"]
     assert doc["test_recipe"]["shards"]["test_fixtures"] == 1 and doc["splits"]["test_fixtures"]["views"] == 12
     assert "| test_fixtures |" in (tmp_path / "out" / "segmentation_learned_mujoco.md").read_text()
+
+
+def test_recon_degraded_quick_scores_exact_and_degraded_cases_against_the_truth(tmp_path: Path) -> None:
+    _run("recon_degraded.py", tmp_path)
+    doc = json.loads((tmp_path / "out" / "recon_degraded.json").read_text())
+    exact, real = doc["rows"]["glass10/exact10"], doc["rows"]["glass10/real10"]
+    assert exact["degradations"] == [] and real["degradations"] == ["pose", "lens", "masks"]
+    assert 0.3 <= real["pose_error"]["reprojection_px_mean"] <= 1.0 and 0.9 < real["input_mask_iou_mean"] < 1.0
+    for row in (exact, real):
+        m = row["methods"]
+        assert 0.8 < m["default"]["heldout_iou_mean"] <= 1.0 and 0.8 < m["voxel hull 128^3"]["heldout_iou_mean"]
+        assert row["best_tuned"] in m
+    md = (tmp_path / "out" / "recon_degraded.md").read_text()
+    assert "defaults >= the 128^3 voxel hull in" in md and "glass10/real10" in md

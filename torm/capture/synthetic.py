@@ -88,13 +88,15 @@ def case_meshes(case: str) -> list[TriMesh]:
     return [_primitive(k, s, c) for k, s, c in RECORDED_CASES[case]["objects"]]
 
 
-def case_cameras(case: str) -> tuple[np.ndarray, list[np.ndarray]]:
-    """(K (3, 3), camera-to-world poses in OpenCV axes) of a case: a spiral of views looking at the centre."""
+def case_cameras(case: str, n_views: int | None = None, hw: tuple[int, int] | None = None
+                 ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """(K (3, 3), camera-to-world poses in OpenCV axes) of a case: a spiral of views looking at the centre.
+    ``n_views`` and ``hw`` (H, W px) replace the case's own (same field of view, same spiral)."""
     c = RECORDED_CASES[case]
-    H, W = c["hw"]
+    H, W = hw or c["hw"]
     f = (W / 2) / math.tan(math.radians(c["fov_x_deg"]) / 2)
     K = np.array([[f, 0.0, W / 2], [0.0, f, H / 2], [0.0, 0.0, 1.0]])
-    n = c["n_views"]
+    n = n_views or c["n_views"]
     lo, hi = (math.radians(x) for x in c["elevations_deg"])
     offsets = dict(c["aim_offset"])
     centre = np.mean([np.asarray(o[2]) for o in c["objects"]], axis=0)
