@@ -9,6 +9,12 @@ per-view times. Writes ``benchmarks/results/gsam_cpu.{json,md}`` with the machin
 
     python benchmarks/gsam_cpu.py               # full size (a few minutes, 1 GB of ONNX in a temp folder)
     python benchmarks/gsam_cpu.py --tiny        # the test configs (seconds), to check the script
+    python benchmarks/gsam_cpu.py --sam-kind sam2 --boxes learned   # SAM 2.1 Hiera-Tiny prompted by torm's
+                                                                    # learned segmenter (sam2_cpu.{json,md})
+
+onnxruntime runs ``--threads`` intra-op threads and one inter-op thread (torm's ``open_session``); its worker
+threads spin while waiting (onnxruntime's default), so a core taken by another process slows it far more than its
+share: the load average at the start and the end is recorded, and a run on a loaded machine is marked contended.
 """
 
 from __future__ import annotations
@@ -35,64 +41,98 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--tiny", action="store_true", help="small configs (a check of the script, not a result)")
     ap.add_argument("--threads", type=int, default=0, help="onnxruntime threads (default: the free cores)")
     ap.add_argument("--views", type=int, default=3, help="views timed (the median is reported)")
-    ap.add_argument("--name", default=None, help="result file stem (default gsam_cpu, gsam_cpu_tiny with --tiny)")
+    ap.add_argument("--sam-kind", choices=("sam", "sam2"), default="sam", help="SAM ViT-B or SAM 2.1 Hiera-Tiny")
+    ap.add_argument("--boxes", choices=("gdino", "learned"), default="gdino",
+                    help="box prompts from Grounding DINO or from torm's learned segmenter (no Grounding DINO)")
+    ap.add_argument("--name", default=None, help="result file stem (default gsam_cpu / sam2_cpu, _tiny with --tiny)")
     args = ap.parse_args(argv)
     threads = setup(args.threads or THREADS)
-    from torm.segmentation.export import export_grounding_dino, export_sam, load_models, write_vocab
+    from torm.segmentation.export import (
+        export_grounding_dino,
+        export_sam,
+        export_sam2,
+        load_models,
+        load_sam2,
+        write_vocab,
+    )
     from torm.segmentation.grounded_sam import GroundedSAMConfig, GroundedSAMSegmenter
     from torm.segmentation.tokenizer import WordPieceTokenizer, grounding_text_inputs
 
     ctx = context(vars(args))
     rgb = cv2.resize(cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB), (1280, 720))  # the D455's size
-    out: dict = {"context": ctx, "tiny": args.tiny, "onnxruntime_threads": threads}
+    out: dict = {"context": ctx, "tiny": args.tiny, "onnxruntime_threads": threads, "sam_kind": args.sam_kind,
+                 "boxes": args.boxes}
+    gdino = args.boxes == "gdino"
+    prompt = "clear glass. transparent object."
+    hw = (128, 224) if args.tiny else (800, 1333)  # the official resize of a 16:9 image
+    n_tokens = 0
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         t0 = time.perf_counter()
-        g, s = load_models(random_weights=True, tiny=args.tiny)
+        g, s = load_models(random_weights=True, tiny=args.tiny, with_gdino=gdino, with_sam=args.sam_kind == "sam")
+        if args.sam_kind == "sam2":
+            s = load_sam2(random_weights=True, tiny=args.tiny)
         out["build_s"] = round(time.perf_counter() - t0, 1)
-        out["parameters"] = {"grounding_dino": sum(p.numel() for p in g.parameters()),
-                             "sam": sum(p.numel() for p in s.parameters())}
-        vocab = write_vocab(d / "vocab.txt")
-        prompt = "clear glass. transparent object."
-        n_tokens = grounding_text_inputs(WordPieceTokenizer.from_file(vocab), prompt).length
-        hw = (128, 224) if args.tiny else (800, 1333)  # the official resize of a 16:9 image
-        gd = export_grounding_dino(g, d / "gdino.onnx", hw, n_tokens)
-        enc, dec = export_sam(s, d / "sam_encoder.onnx", d / "sam_decoder.onnx")
+        out["parameters"] = {"sam": sum(p.numel() for p in s.parameters())}
+        files, cfg = [], {}
+        if gdino:
+            out["parameters"]["grounding_dino"] = sum(p.numel() for p in g.parameters())
+            vocab = write_vocab(d / "vocab.txt")
+            n_tokens = grounding_text_inputs(WordPieceTokenizer.from_file(vocab), prompt).length
+            gd = export_grounding_dino(g, d / "gdino.onnx", hw, n_tokens)
+            files.append(gd)
+            cfg = {"gdino_model": str(gd.path), "bert_vocab": str(vocab), "prompt": prompt, "box_threshold": 0.0,
+                   "text_threshold": 0.0}
+        else:
+            cfg = {"box_source": "learned", "learned": {"fg_threshold": 0.05}}  # boxes on a render of glass
+        export = export_sam2 if args.sam_kind == "sam2" else export_sam
+        enc, dec = export(s, d / "sam_encoder.onnx", d / "sam_decoder.onnx")
+        files += [enc, dec]
         del g, s
         out["exports"] = {m.path.name: {"export_s": m.card["export_s"], "megabytes": round(m.card["bytes"] / 1e6, 1)}
-                          for m in (gd, enc, dec)}
-        seg = GroundedSAMSegmenter(GroundedSAMConfig(
-            gdino_model=str(gd.path), bert_vocab=str(vocab), sam_encoder=str(enc.path), sam_decoder=str(dec.path),
-            prompt=prompt, box_threshold=0.0, text_threshold=0.0, max_detections=5, threads=threads))
-        per: dict[str, list[float]] = {"gdino": [], "sam_encoder": [], "sam_decoder_per_box": [], "view": []}
+                          for m in files}
+        seg = GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=str(enc.path), sam_decoder=str(dec.path),
+                                                     max_detections=5, threads=threads, **cfg))
+        per: dict[str, list[float]] = {"boxes": [], "sam_encoder": [], "sam_decoder_per_box": [], "view": []}
         for _ in range(args.views):
             timings: dict[str, float] = {}
             t = time.perf_counter()
             _, dets = seg.segment_image(rgb, timings)
             per["view"].append(time.perf_counter() - t)
-            per["gdino"].append(timings["gdino"])
+            per["boxes"].append(timings["gdino"])
             per["sam_encoder"].append(timings.get("sam_encoder", 0.0))
             per["sam_decoder_per_box"].append(timings.get("sam_decoder", 0.0) / max(len(dets), 1))
+        out["boxes_per_view"] = len(dets)
     med = {k: round(statistics.median(v), 3) for k, v in per.items()}
     out["seconds_per_view_median"] = med
     out["capture_50_views_min"] = round(50 * med["view"] / 60, 1)
     out["load_avg_end"] = list(os.getloadavg())
-    name = args.name or ("gsam_cpu_tiny" if args.tiny else "gsam_cpu")
+    stem = "gsam_cpu" if args.sam_kind == "sam" and gdino else f"{args.sam_kind}_{args.boxes}_cpu"
+    name = args.name or (f"{stem}_tiny" if args.tiny else stem)
     write_json(RESULTS / f"{name}.json", out)
     rows = [[k, f"{v:.2f}"] for k, v in med.items()]
-    md = [f"# Grounding DINO + SAM on the CPU ({'tiny test configs' if args.tiny else 'published sizes'}, random "
-          "weights)", "", context_md(ctx), "",
-          f"Models built with `transformers` from their default configs (Grounding DINO Swin-T + BERT-base, "
-          f"{out['parameters']['grounding_dino'] / 1e6:.0f} M parameters; SAM ViT-B, "
-          f"{out['parameters']['sam'] / 1e6:.0f} M) with random weights: the graph, shapes and cost of the trained "
-          f"models. Exported with `torm export-models`' code, run by torm's `grounded_sam` segmenter with "
-          f"onnxruntime on {threads} thread(s) on a 1280x720 render, Grounding DINO at {hw[0]}x{hw[1]}, "
-          f"{n_tokens} tokens, up to 5 boxes per view; median of {args.views} views.", "",
+    sam_name = "SAM 2.1 Hiera-Tiny" if args.sam_kind == "sam2" else "SAM ViT-B"
+    boxes = (f"Grounding DINO (Swin-T + BERT-base, {out['parameters']['grounding_dino'] / 1e6:.0f} M parameters) at "
+             f"{hw[0]}x{hw[1]}, {n_tokens} tokens" if gdino else "torm's learned segmenter (its instances' boxes)")
+    load0 = float(ctx["load_avg_start"][0])
+    contended = bool(ctx.get("contended")) or load0 > 0.5 or out["load_avg_end"][0] > 1.5
+    note = "; **contended**: another process held a core, which slows onnxruntime disproportionately"
+    md = [f"# {'Grounding DINO + ' if gdino else 'Learned boxes + '}{sam_name} on the CPU "
+          f"({'tiny test configs' if args.tiny else 'published sizes'}, random weights)", "",
+          context_md(ctx), "",
+          f"Models built with `transformers` from their default configs ({sam_name}, "
+          f"{out['parameters']['sam'] / 1e6:.0f} M parameters) with random weights: the graph, shapes and cost of "
+          f"the trained models. Exported with `torm export-models`' code, run by torm's `grounded_sam` segmenter with "
+          f"onnxruntime on {threads} intra-op thread(s), 1 inter-op thread, on a 1280x720 render; box prompts from "
+          f"{boxes}; up to 5 boxes per view ({out['boxes_per_view']} in the last view); median of {args.views} "
+          "views.", "",
           md_table(["export", "seconds", "MB"], [[k, str(v["export_s"]), str(v["megabytes"])]
                                                  for k, v in out["exports"].items()]), "",
           md_table(["stage", "seconds per view (median)"], rows), "",
           f"A 50-view capture: about **{out['capture_50_views_min']} minutes** on this machine "
-          f"(load average at the end {out['load_avg_end'][0]:.1f}).", ""]
+          f"(load average at the end {out['load_avg_end'][0]:.1f}"
+          f"{note if contended else ''}).",
+          ""]
     (RESULTS / f"{name}.md").write_text("\n".join(md))
     print(json.dumps({"median_s": med, "capture_50_views_min": out["capture_50_views_min"]}))  # noqa: T201
     return out

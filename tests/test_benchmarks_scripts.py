@@ -171,7 +171,7 @@ def test_recon_degraded_quick_scores_exact_and_degraded_cases_against_the_truth(
     assert 0.3 <= real["pose_error"]["reprojection_px_mean"] <= 1.0 and 0.9 < real["input_mask_iou_mean"] < 1.0
     for row in (exact, real):
         m = row["methods"]
-        assert 0.8 < m["default"]["heldout_iou_mean"] <= 1.0 and 0.8 < m["voxel hull 128^3"]["heldout_iou_mean"]
+        assert 0.8 < m["default"]["heldout_iou_mean"] <= 1.0 and m["voxel hull 128^3"]["heldout_iou_mean"] > 0.8
         assert row["best_tuned"] in m
     md = (tmp_path / "out" / "recon_degraded.md").read_text()
     assert "defaults >= the 128^3 voxel hull in" in md and "glass10/real10" in md

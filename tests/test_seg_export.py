@@ -109,3 +109,62 @@ def test_hybrid_prompting_learned_boxes_prompt_sam(exported):
     assert mask.shape == rgb.shape[:2] and len(dets) == len(top)
     with pytest.raises(Exception, match="box_source"):
         GroundedSAMConfig(sam_encoder="x", sam_decoder="y", box_source="yolo")
+
+
+@pytest.fixture(scope="module")
+def exported_sam2(tmp_path_factory):
+    """SAM 2 (tiny config of transformers' Sam2Model, random weights) without Grounding DINO."""
+    out = tmp_path_factory.mktemp("sam2")
+    assert main(["-q", "export-models", "--out", str(out), "--random-weights", "--tiny", "--sam-kind", "sam2",
+                 "--boxes", "learned"]) == 0
+    return out
+
+
+def test_sam2_exports_run_through_torm_with_learned_boxes(exported_sam2):
+    cfg = yaml.safe_load((exported_sam2 / "grounded_sam.yaml").read_text())
+    assert cfg["box_source"] == "learned" and "gdino_model" not in cfg
+    card = json.loads((exported_sam2 / "sam2_encoder.onnx.json").read_text())
+    assert card["sam_kind"] == "sam2" and card["source"] == "facebook/sam2.1-hiera-tiny"
+    seg = GroundedSAMSegmenter(GroundedSAMConfig(**cfg))
+    assert seg.sam_kind == "sam2"
+    rgb = cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB)
+    timings: dict[str, float] = {}
+    mask, dets = seg.segment_image(rgb, timings)
+    assert mask.shape == rgb.shape[:2] and len(dets) >= 1 and set(timings) >= {"sam_encoder", "sam_decoder"}
+
+
+def test_sam2_graphs_reproduce_pytorch(exported_sam2):
+    import onnxruntime as ort
+    import torch
+
+    from torm.segmentation.export import load_sam2
+    from torm.segmentation.grounded_sam import sam2_box_prompt, sam2_preprocess
+
+    m = load_sam2(random_weights=True, tiny=True)  # the same seeded weights the export used
+    rgb = cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB)
+    x = sam2_preprocess(rgb)
+    emb, s0, s1 = ort.InferenceSession(str(exported_sam2 / "sam2_encoder.onnx")).run(None, {"image": x})
+    with torch.no_grad():
+        r0, r1, re = m.get_image_embeddings(torch.from_numpy(x))
+    for a, b in ((emb, re), (s0, r0), (s1, r1)):
+        np.testing.assert_allclose(a, b.numpy(), atol=1e-4)
+    coords, labels = sam2_box_prompt(np.array([60.0, 40.0, 200.0, 150.0]), rgb.shape[:2])
+    masks, iou, low = ort.InferenceSession(str(exported_sam2 / "sam2_decoder.onnx")).run(None, {
+        "image_embeddings": emb, "high_res_feats_0": s0, "high_res_feats_1": s1, "point_coords": coords,
+        "point_labels": labels, "mask_input": np.zeros((1, 1, 256, 256), np.float32),
+        "has_mask_input": np.zeros(1, np.float32), "orig_im_size": np.array(rgb.shape[:2], np.float32)})
+    with torch.no_grad():  # SAM 2's predictor: box corners as points labelled 2 and 3
+        r = m(image_embeddings=[torch.from_numpy(a) for a in (s0, s1, emb)],
+              input_points=torch.from_numpy(coords)[:, None], input_labels=torch.tensor([[[2, 3]]]),
+              multimask_output=False)
+    assert masks.shape == (1, 1, *rgb.shape[:2])
+    np.testing.assert_allclose(low, r.pred_masks[:, 0].numpy(), atol=1e-5)
+    np.testing.assert_allclose(iou, r.iou_scores[:, 0].numpy(), atol=1e-5)
+
+
+def test_a_sam_encoder_with_a_sam2_decoder_is_a_named_error(exported, exported_sam2):
+    sam1 = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    sam2 = yaml.safe_load((exported_sam2 / "grounded_sam.yaml").read_text())
+    with pytest.raises(ModelFileError, match="SAM encoder but the decoder .* is a SAM 2 decoder.*--sam-kind"):
+        GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=sam1["sam_encoder"], sam_decoder=sam2["sam_decoder"],
+                                               box_source="learned"))

@@ -44,6 +44,10 @@ OPSET = 17
 #: Hugging Face ids and licences of the published weights.
 GDINO_ID, GDINO_LICENCE = "IDEA-Research/grounding-dino-tiny", "Apache-2.0"
 SAM_ID, SAM_LICENCE = "facebook/sam-vit-base", "Apache-2.0"
+#: the small SAM-family model for CPUs: SAM 2.1 Hiera-Tiny (transformers has no MobileSAM or EfficientSAM class)
+SAM2_ID, SAM2_LICENCE = "facebook/sam2.1-hiera-tiny", "Apache-2.0"
+#: which SAM an export holds (``torm export-models --sam-kind``)
+SAM_KINDS = ("sam", "sam2")
 
 
 def _torch():
@@ -134,6 +138,56 @@ def _sam_encoder_wrapper(sam: Any) -> Any:
             return self.sam.get_image_embeddings(image)
 
     return SamEncoderOnnx(sam)
+
+
+def _sam2_encoder_wrapper(sam2: Any) -> Any:
+    torch = _torch()
+
+    class Sam2EncoderOnnx(torch.nn.Module):
+        """SAM 2's image encoder: the embeddings and the two high-resolution feature maps its decoder reads."""
+
+        def __init__(self, inner: Any) -> None:
+            super().__init__()
+            self.sam2 = inner
+
+        def forward(self, image):
+            s0, s1, emb = self.sam2.get_image_embeddings(image)
+            return emb, s0, s1
+
+    return Sam2EncoderOnnx(sam2)
+
+
+def _sam2_decoder_wrapper(sam2: Any, multimask: bool) -> Any:
+    torch = _torch()
+    from torch.nn import functional
+
+    class Sam2DecoderOnnx(torch.nn.Module):
+        """SAM 2's mask decoder with the segment-anything-style signature plus the high-resolution features
+        (module docstring). Points as SAM 2's predictor gives them: box corners are points labelled 2/3, and a
+        padding point is appended; masks are resized from 256 x 256 straight to the original size (SAM 2 resizes
+        the image to a square, no padding)."""
+
+        def __init__(self, inner: Any) -> None:
+            super().__init__()
+            self.sam2 = inner
+
+        def forward(self, image_embeddings, high_res_feats_0, high_res_feats_1, point_coords, point_labels,
+                    mask_input, has_mask_input, orig_im_size):
+            pe = self.sam2.prompt_encoder
+            sparse = pe._embed_points(point_coords[:, None], point_labels[:, None].to(torch.int64), pad=True)
+            has = has_mask_input.reshape(-1, 1, 1, 1)
+            dense = has * pe.mask_embed(mask_input) + (1 - has) * pe.no_mask_embed.weight.reshape(1, -1, 1, 1)
+            masks, iou, _, _ = self.sam2.mask_decoder(
+                image_embeddings=image_embeddings,
+                image_positional_embeddings=self.sam2.get_image_wide_positional_embeddings(),
+                sparse_prompt_embeddings=sparse, dense_prompt_embeddings=dense, multimask_output=multimask,
+                high_resolution_features=[high_res_feats_0, high_res_feats_1])
+            low = masks[:, 0]
+            hw = orig_im_size.to(torch.int64)
+            up = functional.interpolate(low, size=(hw[0], hw[1]), mode="bilinear", align_corners=False)
+            return up, iou[:, 0], low
+
+    return Sam2DecoderOnnx(sam2)
 
 
 @dataclass(frozen=True)
@@ -242,19 +296,83 @@ def export_sam(model: Any, encoder_out: Path, decoder_out: Path, multimask: bool
     return enc, dec
 
 
-def load_models(gdino: str = GDINO_ID, sam: str = SAM_ID, random_weights: bool = False,
-                tiny: bool = False, seed: int = 0) -> tuple[Any, Any]:
+def export_sam2(model: Any, encoder_out: Path, decoder_out: Path, multimask: bool = False,
+                source: str = SAM2_ID) -> tuple[ExportedModel, ExportedModel]:
+    """Export ``model`` (a ``transformers`` ``Sam2Model``) as torm's SAM 2 image encoder (``image`` ->
+    ``image_embeddings``, ``high_res_feats_0``, ``high_res_feats_1``) and mask decoder (the SAM decoder's inputs
+    plus the two feature maps). Returns both files with their cards (``sam_kind: sam2``)."""
+    torch = _torch()
+    size = int(model.config.vision_config.backbone_config.image_size[0])
+    side = int(model.config.prompt_encoder_config.image_size // model.config.prompt_encoder_config.patch_size)
+    base = {"source": source, "licence": SAM2_LICENCE, "sam_kind": "sam2"}
+    enc = _export(_sam2_encoder_wrapper(model), (torch.randn(1, 3, size, size),), ["image"],
+                  ["image_embeddings", "high_res_feats_0", "high_res_feats_1"], encoder_out,
+                  {"model": "sam2_image_encoder", **base, "image_size": size,
+                   "config": model.config.vision_config.to_diff_dict()})
+    c0, c1 = (int(model.mask_decoder.conv_s0.out_channels), int(model.mask_decoder.conv_s1.out_channels))
+    args = (torch.randn(1, 256, side, side), torch.randn(1, c0, 4 * side, 4 * side),
+            torch.randn(1, c1, 2 * side, 2 * side), torch.tensor([[[10.0, 20.0], [200.0, 300.0]]]),
+            torch.tensor([[2.0, 3.0]]), torch.zeros(1, 1, 4 * side, 4 * side), torch.zeros(1),
+            torch.tensor([480.0, 640.0]))
+    names = ["image_embeddings", "high_res_feats_0", "high_res_feats_1", "point_coords", "point_labels",
+             "mask_input", "has_mask_input", "orig_im_size"]
+    dec = _export(_sam2_decoder_wrapper(model, multimask), args, names,
+                  ["masks", "iou_predictions", "low_res_masks"], decoder_out,
+                  {"model": "sam2_mask_decoder", **base, "multimask": multimask},
+                  dynamic_axes={"point_coords": {1: "n_points"}, "point_labels": {1: "n_points"},
+                                "masks": {2: "height", 3: "width"}})
+    return enc, dec
+
+
+def load_sam2(sam2: str = SAM2_ID, random_weights: bool = False, tiny: bool = False, seed: int = 0) -> Any:
+    """SAM 2 as a ``transformers`` ``Sam2Model``: from ``sam2`` (a local folder or a Hugging Face id in the cache),
+    or, with ``random_weights``, built from the default config (SAM 2.1 Hiera-Tiny's architecture) or, with
+    ``tiny``, from a small config of the same classes (tests)."""
+    torch = _torch()
+    from transformers import Sam2Config, Sam2Model
+
+    if not random_weights:
+        try:
+            return Sam2Model.from_pretrained(sam2).eval()
+        except OSError as exc:
+            raise ModelFileError(f"cannot load SAM 2 from {sam2!r} ({exc}); give a local folder with --sam, run once "
+                                 "on a machine with internet to fill the Hugging Face cache, or pass "
+                                 "--random-weights to verify the export with the real architecture") from exc
+    torch.manual_seed(seed)
+    if tiny:
+        cfg = Sam2Config(
+            vision_config={"backbone_config": {"model_type": "sam2_hiera_det_model", "hidden_size": 16,
+                                               "blocks_per_stage": [1, 1, 2, 1],
+                                               "embed_dim_per_stage": [16, 32, 64, 128],
+                                               "num_attention_heads_per_stage": [1, 1, 1, 1],
+                                               "global_attention_blocks": [3]},
+                           "backbone_channel_list": [128, 64, 32, 16]},
+            mask_decoder_config={"num_hidden_layers": 1})
+    else:
+        cfg = Sam2Config()
+    m = Sam2Model(cfg).eval()
+    with torch.no_grad():  # as for SAM: informative random weights
+        for p in m.parameters():
+            if p.dim() > 1:
+                p.normal_(0.0, 0.02)
+    return m
+
+
+def load_models(gdino: str | None = GDINO_ID, sam: str = SAM_ID, random_weights: bool = False,
+                tiny: bool = False, seed: int = 0, with_sam: bool = True, with_gdino: bool = True
+                ) -> tuple[Any, Any]:
     """Grounding DINO and SAM as ``transformers`` models: from ``gdino`` / ``sam`` (a local folder or a Hugging
     Face id in the cache), or, with ``random_weights``, built from their default configs (the published
     architectures: Swin-T + BERT-base Grounding DINO, SAM ViT-B) or, with ``tiny``, from small configs of the
-    same classes (tests). Random weights are drawn from a generator seeded with ``seed``."""
+    same classes (tests). Random weights are drawn from a generator seeded with ``seed``. ``with_sam`` /
+    ``with_gdino`` False: that model is not loaded (None in its place)."""
     torch = _torch()
     from transformers import GroundingDinoConfig, GroundingDinoForObjectDetection, SamConfig, SamModel
 
     if not random_weights:
         try:
-            return (GroundingDinoForObjectDetection.from_pretrained(gdino).eval(),
-                    SamModel.from_pretrained(sam).eval())
+            return (GroundingDinoForObjectDetection.from_pretrained(gdino).eval() if with_gdino else None,
+                    SamModel.from_pretrained(sam).eval() if with_sam else None)
         except OSError as exc:
             raise ModelFileError(f"cannot load the models ({exc}); give local folders with --gdino/--sam, run once "
                                  "on a machine with internet to fill the Hugging Face cache, or pass "
@@ -273,12 +391,13 @@ def load_models(gdino: str = GDINO_ID, sam: str = SAM_ID, random_weights: bool =
                          mask_decoder_config={"num_hidden_layers": 1})
     else:
         gcfg, scfg = GroundingDinoConfig(), SamConfig()
-    g = GroundingDinoForObjectDetection(gcfg).eval()
-    s = SamModel(scfg).eval()
-    with torch.no_grad():  # transformers' init leaves SAM's embeddings near 1e-19: make them informative
-        for p in s.parameters():
-            if p.dim() > 1:
-                p.normal_(0.0, 0.02)
+    g = GroundingDinoForObjectDetection(gcfg).eval() if with_gdino else None
+    s = SamModel(scfg).eval() if with_sam else None
+    if s is not None:
+        with torch.no_grad():  # transformers' init leaves SAM's embeddings near 1e-19: make them informative
+            for p in s.parameters():
+                if p.dim() > 1:
+                    p.normal_(0.0, 0.02)
     return g, s
 
 
@@ -295,5 +414,5 @@ def write_vocab(path: Path, size: int = 30522) -> Path:
     return path
 
 
-__all__ = ["GDINO_ID", "OPSET", "SAM_ID", "ExportedModel", "export_grounding_dino", "export_sam", "load_models",
-           "sha256", "write_vocab"]
+__all__ = ["GDINO_ID", "OPSET", "SAM2_ID", "SAM_ID", "SAM_KINDS", "ExportedModel", "export_grounding_dino",
+           "export_sam", "export_sam2", "load_models", "load_sam2", "sha256", "write_vocab"]

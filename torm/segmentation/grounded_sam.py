@@ -19,6 +19,14 @@ SAM image encoder (``sam_encoder``)
             bottom/right;
     output  ``image_embeddings`` (or its only output) (1, 256, 64, 64) float32.
 
+SAM 2 (``torm export-models --sam-kind sam2``: SAM 2.1 Hiera-Tiny, the small SAM-family model for CPUs), told
+apart by its encoder's outputs
+    encoder input (1, 3, 1024, 1024): the image resized to the square (no padding), RGB/255 normalised with the
+            ImageNet mean/std; outputs ``image_embeddings`` (1, 256, 64, 64), ``high_res_feats_0`` (1, 32, 256, 256),
+            ``high_res_feats_1`` (1, 64, 128, 128);
+    decoder the SAM decoder's inputs plus ``high_res_feats_0`` / ``high_res_feats_1``; point coordinates in the
+            square 1024 frame (x * 1024 / W, y * 1024 / H); the same outputs.
+
 SAM mask decoder (``sam_decoder``; segment-anything ``scripts/export_onnx_model.py``)
     inputs  ``image_embeddings`` (1, 256, 64, 64); ``point_coords`` (1, N, 2) in the 1024-resized frame;
             ``point_labels`` (1, N) (box corners: 2 = top-left, 3 = bottom-right); ``mask_input``
@@ -72,6 +80,11 @@ SAM_DECODER_INPUTS = (
     TensorSpec("has_mask_input", ("has_mask_input",), (1,)),
     TensorSpec("orig_im_size", ("orig_im_size",), (2,)),
 )
+#: SAM 2's decoder also reads the encoder's two high-resolution feature maps
+SAM2_DECODER_INPUTS = (
+    TensorSpec("high_res_0", ("high_res_feats_0",), (1, None, 256, 256), required=False),
+    TensorSpec("high_res_1", ("high_res_feats_1",), (1, None, 128, 128), required=False),
+)
 SAM_DECODER_OUTPUTS = (
     TensorSpec("masks", ("masks",), (1, None, None, None)),
     TensorSpec("iou_predictions", ("iou_predictions", "scores"), (1, None)),
@@ -84,9 +97,12 @@ BOX_SOURCES = ("gdino", "learned")
 
 
 def sam_encoder_specs(image_size: int) -> tuple[tuple[TensorSpec, ...], tuple[TensorSpec, ...]]:
+    """The SAM (or SAM 2) image encoder's signature at ``image_size`` px (SAM 2's feature maps are optional)."""
     side = image_size // 16
     return ((TensorSpec("image", ("image", "input_image", "x", "images", "*"), (1, 3, image_size, image_size)),),
-            (TensorSpec("image_embeddings", ("image_embeddings", "*"), (1, 256, side, side)),))
+            (TensorSpec("image_embeddings", ("image_embeddings", "*"), (1, 256, side, side)),
+             TensorSpec("high_res_0", ("high_res_feats_0",), (1, None, 4 * side, 4 * side), required=False),
+             TensorSpec("high_res_1", ("high_res_feats_1",), (1, None, 2 * side, 2 * side), required=False)))
 
 
 def _fraction(name: str, v: float) -> None:
@@ -196,6 +212,20 @@ def sam_preprocess(rgb: np.ndarray, long_side: int = 1024) -> np.ndarray:
     return out
 
 
+def sam2_preprocess(rgb: np.ndarray, side: int = 1024) -> np.ndarray:
+    """(H, W, 3) uint8 RGB -> (1, 3, S, S) float32 as SAM 2's predictor prepares it: resized to the square S x S
+    (aspect not kept, no padding), RGB/255 normalised with the ImageNet mean/std."""
+    x = _resize(rgb, (side, side)).astype(np.float32) / 255.0
+    return ((x - IMAGENET_MEAN) / IMAGENET_STD).transpose(2, 0, 1)[None].astype(np.float32)
+
+
+def sam2_box_prompt(box_xyxy: np.ndarray, hw: tuple[int, int], side: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """Box corners in SAM 2's square frame (1, 2, 2) float32 and their labels (1, 2) = [2, 3]."""
+    h, w = hw
+    pts = np.asarray(box_xyxy, dtype=np.float64).reshape(2, 2) * np.array([side / w, side / h])
+    return pts[None].astype(np.float32), np.array([[2.0, 3.0]], dtype=np.float32)
+
+
 def sam_box_prompt(box_xyxy: np.ndarray, hw: tuple[int, int], long_side: int = 1024) -> tuple[np.ndarray, np.ndarray]:
     """Box corners in the resized frame (1, 2, 2) float32 and their labels (1, 2) = [2, 3]."""
     h, w = hw
@@ -226,8 +256,18 @@ class GroundedSAMSegmenter(Segmenter):
         enc_in, enc_out = sam_encoder_specs(c.sam_image_size)
         self.sam_encoder = open_session(c.sam_encoder, "grounded_sam.sam_encoder", enc_in, enc_out, providers,
                                         c.threads)
-        self.sam_decoder = open_session(c.sam_decoder, "grounded_sam.sam_decoder", SAM_DECODER_INPUTS,
-                                        SAM_DECODER_OUTPUTS, providers, c.threads)
+        self.sam_decoder = open_session(c.sam_decoder, "grounded_sam.sam_decoder",
+                                        SAM_DECODER_INPUTS + SAM2_DECODER_INPUTS, SAM_DECODER_OUTPUTS, providers,
+                                        c.threads)
+        enc2 = {"high_res_0", "high_res_1"} <= set(self.sam_encoder.outputs)
+        dec2 = {"high_res_0", "high_res_1"} <= set(self.sam_decoder.inputs)
+        if enc2 != dec2:
+            raise ModelFileError(
+                f"grounded_sam: the encoder {self.sam_encoder.path} is a {'SAM 2' if enc2 else 'SAM'} encoder but the "
+                f"decoder {self.sam_decoder.path} is a {'SAM 2' if dec2 else 'SAM'} decoder (SAM 2's exchange "
+                "high_res_feats_0/1); export both with the same `torm export-models --sam-kind`")
+        #: ``sam`` or ``sam2``: which SAM the files hold (told apart by the encoder's outputs)
+        self.sam_kind = "sam2" if enc2 else "sam"
         self.boxer = None
         if c.box_source == "learned":  # hybrid prompting: the learned segmenter's instances prompt SAM
             from torm.config import from_dict
@@ -276,17 +316,26 @@ class GroundedSAMSegmenter(Segmenter):
             min_box_px=c.min_box_px, max_detections=c.max_detections,
         )
 
-    def embed(self, rgb: np.ndarray) -> np.ndarray:
-        """SAM image embeddings (1, 256, 64, 64) of ``rgb``."""
-        return self.sam_encoder.run({"image": sam_preprocess(rgb, self.config.sam_image_size)},
-                                    ("image_embeddings",))[0]
+    def embed(self, rgb: np.ndarray) -> dict[str, np.ndarray]:
+        """The encoder's outputs for ``rgb`` by role: ``image_embeddings`` (1, 256, 64, 64) and, for SAM 2,
+        ``high_res_0`` / ``high_res_1``."""
+        size = self.config.sam_image_size
+        if self.sam_kind == "sam2":
+            roles = ("image_embeddings", "high_res_0", "high_res_1")
+            out = self.sam_encoder.run({"image": sam2_preprocess(rgb, size)}, roles)
+            return dict(zip(roles, out, strict=True))
+        return {"image_embeddings": self.sam_encoder.run({"image": sam_preprocess(rgb, size)},
+                                                         ("image_embeddings",))[0]}
 
-    def mask_logits(self, embeddings: np.ndarray, box_xyxy: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
-        """(H, W) SAM mask logits for one box prompt."""
-        coords, labels = sam_box_prompt(box_xyxy, hw, self.config.sam_image_size)
+    def mask_logits(self, embeddings: dict[str, np.ndarray], box_xyxy: np.ndarray, hw: tuple[int, int]
+                    ) -> np.ndarray:
+        """(H, W) SAM mask logits for one box prompt (``embeddings`` from :meth:`embed`)."""
+        prompt = sam2_box_prompt if self.sam_kind == "sam2" else sam_box_prompt
+        coords, labels = prompt(box_xyxy, hw, self.config.sam_image_size)
+        side = 4 * self.config.sam_image_size // 16
         masks, iou = self.sam_decoder.run(
-            {"image_embeddings": embeddings, "point_coords": coords, "point_labels": labels,
-             "mask_input": np.zeros((1, 1, 256, 256), np.float32), "has_mask_input": np.zeros(1, np.float32),
+            {**embeddings, "point_coords": coords, "point_labels": labels,
+             "mask_input": np.zeros((1, 1, side, side), np.float32), "has_mask_input": np.zeros(1, np.float32),
              "orig_im_size": np.array(hw, dtype=np.float32)},
             ("masks", "iou_predictions"),
         )
@@ -339,7 +388,7 @@ class GroundedSAMSegmenter(Segmenter):
             log.debug("view %d: %d detections", i, len(d))
         timings["total"] = time.perf_counter() - t0
         out = np.stack(masks)
-        info: dict[str, Any] = {"segmenter": self.name, "box_source": self.config.box_source,
+        info: dict[str, Any] = {"segmenter": self.name, "box_source": self.config.box_source, "sam_kind": self.sam_kind,
                                 "prompt": self.config.prompt if self.boxer is None else None,
                                 "providers": self.sam_encoder.session.get_providers()}
         info.update(score_against_capture(out, capture))
