@@ -13,6 +13,7 @@ Frames and units as in :mod:`torm.methods.interface`: world frame (robot base, z
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -40,7 +41,9 @@ def estimates_from(perception: Any) -> list[ObjectEstimate]:
             for k, c in enumerate(perception.point_clouds)]
 
 
-class _Builtin:
+class _Builtin(ABC):
+    """What the built-ins share: ``version`` (torm's) and ``perceive`` = :meth:`run` reduced to the interface."""
+
     name = ""
     needs = Needs()
 
@@ -48,8 +51,9 @@ class _Builtin:
     def version(self) -> str:
         return _version()
 
-    def run(self, capture: Capture, context: MethodContext) -> Any:  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abstractmethod
+    def run(self, capture: Capture, context: MethodContext) -> Any:
+        """The method's :class:`torm.perception.Perception` (clouds, meshes and diagnostics) of ``capture``."""
 
     def perceive(self, capture: Capture, context: MethodContext) -> list[ObjectEstimate]:
         """Per-object estimates (world frame, m); see :meth:`run` for the diagnostics."""
