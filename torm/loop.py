@@ -232,7 +232,7 @@ def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z:
                                                   "confidences": [float(e.confidence) for e in estimates]}})
 
 
-def plan_with_plugin(config: TrialConfig, per: Perception, table_z: float, gripper: Any, rng: np.random.Generator,
+def plan_with_planner(config: TrialConfig, per: Perception, table_z: float, gripper: Any, rng: np.random.Generator,
                      obstacles: np.ndarray | None) -> list[list[Any]]:
     """Grasps from the trial's planner (:mod:`torm.methods.planners`: the built-in ``antipodal`` and plug-ins
     through the same interface), checked before execution (:func:`~torm.methods.planners.validate_grasps`)."""
@@ -294,7 +294,7 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
             observer.perceived(per.point_clouds)
         table_z = float(per.info["capture"].table_height)
         t = time.perf_counter()
-        grasps = plan_with_plugin(config, per, table_z, gripper, rng, obstacles)  # built-in or plug-in alike
+        grasps = plan_with_planner(config, per, table_z, gripper, rng, obstacles)
         timings["grasp_planning"] = timings.get("grasp_planning", 0.0) + time.perf_counter() - t
         log.info("grasp planning: %d candidates for %d objects", sum(len(g) for g in grasps), len(grasps))
         if recorder is not None:
