@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as bc  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from recon_vs_carve import _objects, score, torm_method  # noqa: E402
+from recon_vs_carve import auto_box, auto_box_hull, open3d_method, score, torm_method  # noqa: E402
 
 from torm.capture.degrade import hand_drawn_mask, perturb_poses  # noqa: E402
 from torm.capture.io import load_capture  # noqa: E402
@@ -57,8 +57,6 @@ from torm.errors import ReconstructionError  # noqa: E402
 from torm.geometry import cv_to_gl  # noqa: E402
 from torm.mesh.sample import sample_surface  # noqa: E402
 from torm.reconstruction import ReconstructionConfig  # noqa: E402
-from torm.reconstruction.bounds import auto_bounds  # noqa: E402
-from torm.reconstruction.carve import carve_visual_hull, occupancy_mesh, voxel_grid_shape  # noqa: E402
 from torm.reconstruction.raster import render_mask_fast  # noqa: E402
 from torm.types import CameraView, Capture, TriMesh  # noqa: E402
 
@@ -181,45 +179,12 @@ def build_case(a: argparse.Namespace, shape: str, case: str) -> tuple[Capture, C
 # ----------------------------------------------------------------------------------------------------------
 # Methods
 # ----------------------------------------------------------------------------------------------------------
-def hull_method(res: int) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]]:
-    def run(c: Capture) -> tuple[list[TriMesh], dict[str, Any]]:
-        b = auto_bounds(c.masks() > 0, c.Ks(), c.poses())
-        r = carve_visual_hull(c.masks() > 0, c.Ks(), c.poses(), b, res, table_z=None)
-        return _objects(r.mesh), {}
-    return run
-
-
-def open3d_hull(res: int) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]] | None:
-    try:
-        import open3d as o3d
-    except ImportError:
-        return None
-
-    def run(c: Capture) -> tuple[list[TriMesh], dict[str, Any]]:
-        b = auto_bounds(c.masks() > 0, c.Ks(), c.poses())
-        shape, pitch = voxel_grid_shape(b, res)
-        vg = o3d.geometry.VoxelGrid.create_dense(b[0], np.zeros(3), pitch, *(np.asarray(shape) * pitch))
-        H, W = c.image_size
-        for v in c.views:
-            cam = o3d.camera.PinholeCameraParameters()
-            cam.intrinsic = o3d.camera.PinholeCameraIntrinsic(W, H, v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2])
-            cam.extrinsic = v.T_cam_world
-            vg.carve_silhouette(o3d.geometry.Image((v.mask > 0).astype(np.float32)), cam,
-                                keep_voxels_outside_image=True)
-        occ = np.zeros(shape, dtype=bool)
-        idx = np.array([x.grid_index for x in vg.get_voxels()], dtype=np.int64).reshape(-1, 3)
-        idx = idx[np.all((idx >= 0) & (idx < shape), axis=1)]
-        occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-        return _objects(occupancy_mesh(occ, b[0], pitch)), {"open3d": o3d.__version__}
-    return run
-
-
 def methods(quick: bool) -> dict[str, Callable]:
     tuned = dict(list(TUNED.items())[:3]) if quick else TUNED
     out: dict[str, Callable] = {"default": torm_method(ReconstructionConfig())}
     out |= {k: torm_method(ReconstructionConfig(**kw)) for k, kw in tuned.items()}
-    out[HULL] = hull_method(128)
-    o3 = open3d_hull(128)
+    out[HULL] = auto_box_hull(128)
+    o3 = open3d_method(128, auto_box)
     if o3 is not None:
         out[OPEN3D] = o3
     return out

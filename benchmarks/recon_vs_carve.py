@@ -158,15 +158,33 @@ def carve_method(res: int) -> Callable[[Capture], tuple[list[TriMesh], dict[str,
     return run
 
 
-def open3d_method(res: int) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]] | None:
-    """Open3D's dense VoxelGrid carved by every silhouette (voxels outside an image are kept), or None."""
+def auto_box(cap: Capture) -> np.ndarray:
+    """(2, 3) m: the automatic box of a capture without one (silhouette cones, coarse hull, margin)."""
+    from torm.reconstruction.bounds import auto_bounds
+
+    return auto_bounds(cap.masks() > 0, cap.Ks(), cap.poses())
+
+
+def auto_box_hull(res: int) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]]:
+    """A plain numpy voxel hull at ``res`` over the automatic box, no table (what a user would write)."""
+    def run(c: Capture) -> tuple[list[TriMesh], dict[str, Any]]:
+        b = auto_box(c)
+        r = carve_visual_hull(c.masks() > 0, c.Ks(), c.poses(), b, res, table_z=None)
+        return _objects(r.mesh), {"bounds": b.tolist()}
+    return run
+
+
+def open3d_method(res: int, box: Callable[[Capture], np.ndarray] | None = None
+                  ) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]] | None:
+    """Open3D's dense VoxelGrid carved by every silhouette (voxels outside an image are kept), or None; over the
+    capture's workspace box, or ``box(capture)``."""
     try:
         import open3d as o3d
     except ImportError:
         return None
 
     def run(cap: Capture) -> tuple[list[TriMesh], dict[str, Any]]:
-        b = cap.workspace_bounds
+        b = box(cap) if box is not None else cap.workspace_bounds
         shape, pitch = voxel_grid_shape(b, res)
         ext = np.asarray(shape) * pitch
         vg = o3d.geometry.VoxelGrid.create_dense(b[0], np.zeros(3), pitch, *ext)
@@ -331,17 +349,7 @@ def recorded_case(a: argparse.Namespace, case: str) -> dict[str, Any]:
     cap_none = cap  # the default reads bounds/table from the capture (none: automatic, no table)
     # the carves get the same automatic box (a voxel carve needs one) and no table
 
-    def hull(res: int) -> Callable[[Capture], tuple[list[TriMesh], dict[str, Any]]]:
-        def run(c: Capture) -> tuple[list[TriMesh], dict[str, Any]]:
-            """A plain numpy voxel hull over the automatic box, no table (what a user would write)."""
-            from torm.reconstruction.bounds import auto_bounds
-
-            b = auto_bounds(c.masks() > 0, c.Ks(), c.poses())
-            r = carve_visual_hull(c.masks() > 0, c.Ks(), c.poses(), b, res, table_z=None)
-            return _objects(r.mesh), {"bounds": b.tolist()}
-        return run
-
-    methods = {FAST: torm_method(cfg), **{f"carve {r}^3": hull(r) for r in a.carve_res}}
+    methods = {FAST: torm_method(cfg), **{f"carve {r}^3": auto_box_hull(r) for r in a.carve_res}}
     res = run_methods(methods, cap_none, held, gt, a.repeats, set(methods))
     best = _best_carve(res)
     f = res.get(FAST, {})

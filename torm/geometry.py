@@ -94,6 +94,14 @@ def R_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
     return q if q[0] >= 0 else -q
 
 
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The proper rotations (det +1) nearest in the Frobenius norm to ``M`` (..., 3, 3) (SVD; Higham 1989)."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    U = U.copy()
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
+
+
 def is_rotation(R: np.ndarray, tol: float = 1e-5) -> bool:
     """True when R is a proper rotation (orthonormal, det +1) within ``tol``."""
     return bool(

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from torm.errors import ModelFileError
+from torm.geometry import nearest_rotation
 from torm.grasp.antipodal import GraspCandidates
 from torm.grasp.gripper import GripperGeometry
 from torm.grasp.planner import GraspPlannerConfig, prepare_scene, select_grasps
@@ -38,14 +39,6 @@ EXPECTED_SIGNATURE = (
     f"input '{INPUT_NAME}' float32 (B, N, 3) object-centred points -> output '{OUTPUT_NAME}' float32 (B, K, 17) "
     "GraspNet rows [score, width, height, depth, R(9), t(3), object_id] in the object-centred frame"
 )
-
-
-def _orthonormalise(R_kx3x3: np.ndarray) -> np.ndarray:
-    """Nearest proper rotations (SVD, det +1) of (K, 3, 3) matrices."""
-    U, _, Vt = np.linalg.svd(R_kx3x3)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= d[:, None]
-    return U @ Vt
 
 
 class OnnxGraspPlanner:
@@ -124,7 +117,7 @@ class OnnxGraspPlanner:
         ok &= np.abs(np.linalg.det(np.where(ok[:, None, None], R, np.eye(3)))) > 1e-6
         obj, R, t, score, width, depth = obj[ok], R[ok], t[ok], score[ok], width[ok], depth[ok]
         if len(R):
-            R = _orthonormalise(R)
+            R = nearest_rotation(R)
         width = np.clip(width, g.min_opening, g.max_opening)
         depth = np.clip(depth, 0.0, g.finger_length)
         nan = np.full(len(obj), np.nan)

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from torm.errors import ConfigError, UnknownNameError
+from torm.geometry import nearest_rotation
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -34,11 +35,6 @@ def _inv(T: np.ndarray) -> np.ndarray:
     out[:3, :3] = T[:3, :3].T
     out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
     return out
-
-
-def _orthonormalise(M: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(M)
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
 
 def relative_motions(T_base_flange: Sequence[np.ndarray], T_cam_target: Sequence[np.ndarray],
@@ -89,7 +85,7 @@ def _rot_park(As, Bs) -> np.ndarray:
         beta = Rotation.from_matrix(B[:3, :3]).as_rotvec()
         M += np.outer(beta, alpha)
     w, V = np.linalg.eigh(M.T @ M)
-    return _orthonormalise(V @ np.diag(1 / np.sqrt(np.maximum(w, 1e-18))) @ V.T @ M.T)
+    return nearest_rotation(V @ np.diag(1 / np.sqrt(np.maximum(w, 1e-18))) @ V.T @ M.T)
 
 
 def _quat(R: np.ndarray) -> np.ndarray:
@@ -123,7 +119,7 @@ def _rot_andreff(As, Bs) -> np.ndarray:
     v = np.linalg.svd(M)[2][-1]
     R = v.reshape(3, 3, order="F")
     R = R * np.sign(np.linalg.det(R)) / abs(np.linalg.det(R)) ** (1 / 3)
-    return _orthonormalise(R)
+    return nearest_rotation(R)
 
 
 def _dual_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

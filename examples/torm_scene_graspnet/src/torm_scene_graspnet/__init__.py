@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from torm.errors import PluginError
+from torm.geometry import nearest_rotation
 from torm.types import Grasp, ObjectPointCloud
 
 __version__ = "0.1.0"
@@ -69,13 +70,6 @@ def visible_points(points_cam_nx3: np.ndarray, cell_m: float, tolerance_m: float
     zmin = minimum_filter(zmin, size=3, mode="nearest")
     vis[np.flatnonzero(front)] = q[:, 2] <= zmin[uv[:, 0], uv[:, 1]] + tolerance_m
     return vis
-
-
-def _orthonormalise(R_kx3x3: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(R_kx3x3)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= d[:, None]
-    return U @ Vt
 
 
 class SceneGraspNet:
@@ -174,7 +168,7 @@ class SceneGraspNet:
         g = context.gripper
         ok = np.all(np.isfinite(rows[:, :16]), axis=1) & (score >= self.min_score) & (width <= g.max_opening + 1e-9)
         ok &= np.abs(np.linalg.det(np.where(ok[:, None, None], R_cam, np.eye(3)))) > 1e-6
-        R_w = T[:3, :3] @ _orthonormalise(R_cam[ok]) if ok.any() else np.zeros((0, 3, 3))
+        R_w = T[:3, :3] @ nearest_rotation(R_cam[ok]) if ok.any() else np.zeros((0, 3, 3))
         t_w = t_cam[ok] @ T[:3, :3].T + T[:3, 3]
         # which object each grasp is for: the one with the nearest point to its centre
         owner = np.concatenate([np.full(len(c.points_nx3), k) for k, c in enumerate(point_clouds)])
