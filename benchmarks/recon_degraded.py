@@ -15,7 +15,10 @@ and these degradations (:mod:`torm.capture.degrade`), alone and together:
   ``--vertex-sigma-px``, anti-aliased soft edges). No measured source for annotators' vertex error was found; the
   defaults (2 px, 1 px at 2048 px width) are an assumption stated here, and the input-mask IoU they cause is in
   every row;
-- ``views``: 8, 10 or 12 input views (10 in the single-degradation cases); ``exact50``: 50 exact views.
+- ``views``: 8, 10 or 12 input views (10 in the single-degradation cases); ``exact50``: 50 exact views;
+- stress cases, beyond those ranges and outside the targets (:data:`STRESS`): twice the pose error, a hand twice as
+  coarse, and masks drawn ``--bias-px`` (1.5 px at 2048 px) outside (``halo``) or inside (``shrink``) the edge, the
+  systematic error of a soft mask thresholded too low or too high.
 
 Scored on held-out views with the **exact** cameras and masks (truth, not the degraded inputs): silhouette IoU at
 the capture resolution, Chamfer (mm) and volume IoU against the true meshes. Methods: ``default``
@@ -71,7 +74,13 @@ CASES: dict[str, tuple[int, tuple[str, ...]]] = {
     "exact50": (50, ()), "exact10": (10, ()), "pose10": (10, ("pose",)), "lens10": (10, ("lens",)),
     "masks10": (10, ("masks",)), "real8": (8, ("pose", "lens", "masks")), "real10": (10, ("pose", "lens", "masks")),
     "real12": (12, ("pose", "lens", "masks")),
+    # stress: beyond the ranges above, to see where the defaults start to lose (not part of the targets)
+    "pose_x2_10": (10, ("pose_x2",)), "masks_x2_10": (10, ("masks_x2",)), "halo10": (10, ("masks", "halo")),
+    "shrink10": (10, ("masks", "shrink")), "stress10": (10, ("pose_x2", "lens", "masks_x2")),
 }
+#: degradations beyond the issue's ranges: twice the pose error, a hand twice as coarse, masks drawn
+#: ``--bias-px`` outside (halo) or inside (shrink) the true edge
+STRESS = ("pose_x2", "masks_x2", "halo", "shrink")
 #: tuned settings tried beside the defaults (ReconstructionConfig overrides)
 TUNED: dict[str, dict[str, Any]] = {
     "strict band (fine_vote_views=0)": {"fine_vote_views": 0},
@@ -97,6 +106,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--heldout", type=int, default=6, help="held-out views per case (exact cameras and masks)")
     p.add_argument("--simplify-px", type=float, default=2.0, help="hand-drawn masks: polygon tolerance at 2048 px")
     p.add_argument("--vertex-sigma-px", type=float, default=1.0, help="hand-drawn masks: vertex error at 2048 px")
+    p.add_argument("--bias-px", type=float, default=1.5, help="halo / shrink stress: edge offset at 2048 px")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=bc.THREADS)
     p.add_argument("--out", type=Path, default=bc.RESULTS)
@@ -141,8 +151,17 @@ def build_case(a: argparse.Namespace, shape: str, case: str) -> tuple[Capture, C
     masks = [_silhouette(meshes, K, T, hw) for T in poses]  # what each true camera sees
     scale = hw[1] / 2048.0
     soft = [m.astype(np.float32) for m in masks]
-    if "masks" in degs:
-        soft = [hand_drawn_mask(m, rng, a.simplify_px * scale, a.vertex_sigma_px * scale) for m in masks]
+    drawn = masks
+    if "halo" in degs or "shrink" in degs:  # a systematic edge offset: the mask drawn outside / inside the edge
+        bias = a.bias_px * scale
+        if "halo" in degs:
+            drawn = [cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5) <= bias for m in masks]
+        else:
+            drawn = [cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 5) > bias for m in masks]
+        info["edge_bias_px"] = bias if "halo" in degs else -bias
+    if "masks" in degs or "masks_x2" in degs:
+        k = 2.0 if "masks_x2" in degs else 1.0
+        soft = [hand_drawn_mask(m, rng, k * a.simplify_px * scale, k * a.vertex_sigma_px * scale) for m in drawn]
         info["input_mask_iou_mean"] = float(np.mean([((s >= 0.5) & m).sum() / max(((s >= 0.5) | m).sum(), 1)
                                                       for s, m in zip(soft, masks, strict=True)]))
     if "lens" in degs:
@@ -151,9 +170,10 @@ def build_case(a: argparse.Namespace, shape: str, case: str) -> tuple[Capture, C
         soft = [distort_image(s, K, REAL_LENS) for s in soft]
         info["lens"] = REAL_LENS.to_json()
     used = np.asarray(poses)
-    if "pose" in degs:
+    if "pose" in degs or "pose_x2" in degs:
         pts = sample_surface(bc.concat(meshes), 2000, np.random.default_rng(0)).points_nx3
-        target = rng.uniform(*POSE_PX, size=len(poses))
+        k = 2.0 if "pose_x2" in degs else 1.0
+        target = rng.uniform(k * POSE_PX[0], k * POSE_PX[1], size=len(poses))
         used, errs = perturb_poses(np.asarray(poses), np.repeat(K[None], len(poses), 0), pts, target, rng)
         info["pose_error"] = {"reprojection_px_mean": float(np.mean([e.reprojection_rms_px for e in errs])),
                               "rotation_mrad_mean": 1e3 * float(np.mean([e.rotation_rad for e in errs])),
@@ -206,10 +226,11 @@ def run_case(a: argparse.Namespace, shape: str, case: str) -> dict[str, Any]:
     torm_rows = {k: v for k, v in res.items() if k not in (HULL, OPEN3D)}
     best = max(torm_rows, key=lambda k: torm_rows[k].get("heldout_iou_mean", 0.0))
     d, h, b = (res[k].get("heldout_iou_mean", 0.0) for k in ("default", HULL, best))
-    return {"shape": shape, "case": case, **info, "methods": res, "best_tuned": best,
+    return {"shape": shape, "case": case, **info, "stress": bool(set(CASES[case][1]) & set(STRESS)),
+            "methods": res, "best_tuned": best,
             "default_vs_hull": d - h, "default_over_best": d / b if b else None,
             "meets_hull": bool(d >= h), "meets_best": bool(b and d >= 0.95 * b),
-            "load_avg_1min": os.getloadavg()[0], "case_s": time.perf_counter() - t0}
+            "load_avg_1min": os.getloadavg()[0], "case_s": time.perf_counter() - t0}  # "ran" added by main()
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -227,10 +248,13 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
                      m.get(OPEN3D, {}).get("heldout_iou_mean"), r["best_tuned"],
                      m[r["best_tuned"]].get("heldout_iou_mean"),
                      "yes" if r["meets_hull"] else "**no**", "yes" if r["meets_best"] else "**no**"])
+        ran = r.get("ran", {})
         extra.append([key, m["default"].get("chamfer_mm"), m.get(HULL, {}).get("chamfer_mm"),
                       m["default"].get("volume_iou"), m.get(HULL, {}).get("volume_iou"),
-                      m["default"].get("time_s"), m.get(HULL, {}).get("time_s")])
-    degraded = [r for r in doc["rows"].values() if r["degradations"]]
+                      m["default"].get("time_s"), m.get(HULL, {}).get("time_s"),
+                      f"{ran.get('git', doc['context']['versions']['git'])} {ran.get('date_utc', '')[:16]}"])
+    degraded = [r for r in doc["rows"].values() if r["degradations"] and not r.get("stress")]
+    stress = [r for r in doc["rows"].values() if r.get("stress")]
     n_hull = sum(r["meets_hull"] for r in degraded)
     n_best = sum(r["meets_best"] for r in degraded)
     tuned_names = sorted({k for r in doc["rows"].values() for k in r["methods"] if k not in (HULL, OPEN3D)})
@@ -244,7 +268,11 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
           "reprojection error (px) of the input views; input mask IoU: hand-drawn vs exact, mean over input views.\n",
           bc.context_md(ctx),
           f"\n**Degraded cases: defaults >= the 128^3 voxel hull in {n_hull}/{len(degraded)}, >= 0.95 of the best "
-          f"tuned setting in {n_best}/{len(degraded)}.**\n",
+          f"tuned setting in {n_best}/{len(degraded)}.**"
+          + (f" Stress cases (beyond those ranges: twice the pose error, a hand twice as coarse, masks drawn "
+             f"{doc['context']['args'].get('bias_px')} px outside or inside the edge): >= the hull in "
+             f"{sum(r['meets_hull'] for r in stress)}/{len(stress)}, >= 0.95 of the best in "
+             f"{sum(r['meets_best'] for r in stress)}/{len(stress)}." if stress else "") + "\n",
           "\n## Held-out silhouette IoU\n",
           bc.md_table(["shape / case", "views", "degradations", "pose err px", "input mask IoU", "default",
                        HULL, OPEN3D, "best tuned", "its IoU", "default >= hull", "default >= 0.95 best"], rows),
@@ -252,7 +280,7 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
           bc.md_table(["setting", "cases", "mean", "min"], per_setting),
           "\n## Chamfer, volume IoU and time (default vs voxel hull)\n",
           bc.md_table(["shape / case", "default Chamfer mm", "hull Chamfer mm", "default vol IoU", "hull vol IoU",
-                       "default s", "hull s"], extra)]
+                       "default s", "hull s", "ran (git, UTC)"], extra)]
     path_md.write_text("\n".join(md) + "\n")
 
 
@@ -262,6 +290,10 @@ def main(argv: list[str] | None = None) -> int:
     path = a.out / f"{a.name}.json"
     doc = json.loads(path.read_text()) if path.exists() else {"rows": {}}
     if not a.report_only:
+        for r in doc["rows"].values():  # rows of an earlier run keep that run's identity
+            if "ran" not in r and "context" in doc:
+                r["ran"] = {"git": doc["context"]["versions"]["git"], "date_utc": doc["context"]["date_utc"],
+                            "load_avg_start": r.pop("load_avg_1min", None)}
         doc["context"] = bc.context({k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()})
         for shape in a.shapes:
             for case in a.cases:
@@ -269,8 +301,9 @@ def main(argv: list[str] | None = None) -> int:
                 if key in doc["rows"] and not a.redo:
                     continue
                 log.info("%s ...", key)
-                doc["rows"][key] = run_case(a, shape, case)
-                r = doc["rows"][key]
+                doc["rows"][key] = r = run_case(a, shape, case)
+                r["ran"] = {"git": doc["context"]["versions"]["git"], "date_utc": doc["context"]["date_utc"],
+                            "load_avg_start": r.pop("load_avg_1min")}
                 log.info("%s: default %.3f, hull %.3f, best %s %.3f (%.0f s)", key,
                          r["methods"]["default"].get("heldout_iou_mean", 0), r["methods"][HULL]["heldout_iou_mean"],
                          r["best_tuned"], r["methods"][r["best_tuned"]]["heldout_iou_mean"], r["case_s"])
