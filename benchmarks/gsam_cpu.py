@@ -133,8 +133,7 @@ def main(argv: list[str] | None = None) -> dict:
     boxes = (f"Grounding DINO (Swin-T + BERT-base, {out['parameters']['grounding_dino'] / 1e6:.0f} M parameters) at "
              f"{hw[0]}x{hw[1]}, {n_tokens} tokens" if gdino else "torm's learned segmenter (its instances' boxes)")
     contended = out["other_processes_cores"] > 0.25
-    note = (f"; other processes kept {out['other_processes_cores']} cores busy while the views ran: **contended**, "
-            "which slows onnxruntime disproportionately")
+    note = ": **contended**, which slows onnxruntime disproportionately"
     md = [f"# {'Grounding DINO + ' if gdino else 'Learned boxes + '}{sam_name} on the CPU "
           f"({'tiny test configs' if args.tiny else 'published sizes'}, random weights)", "",
           context_md(ctx), "",
