@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-import torm.loop as loop
+import torm.methods.builtins as builtins
 from torm.segmentation.base import SegmentationResult, Segmenter
 from torm.segmentation.gt import gt_masks
 
@@ -35,7 +35,7 @@ class _MissesOneObject(Segmenter):
 
 def test_an_object_missing_in_most_views_leaves_the_other_picks_running(torm_trial, monkeypatch):
     seg = _MissesOneObject()
-    monkeypatch.setattr(loop, "_segmenter", lambda config: seg)
+    monkeypatch.setattr(builtins, "segmenter_for", lambda config: seg)  # the segmenter the built-in torm runs
     rec = torm_trial("rw3", method="torm")
     assert rec["failure"] is None  # the scene is not aborted
     by_id = {o["object_id"]: o for o in rec["objects"]}
