@@ -11,36 +11,39 @@ import pytest
 
 from torm.errors import PluginError
 
-EXAMPLE_SRC = Path(__file__).resolve().parents[1] / "examples" / "torm_plane_fill" / "src"
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BOUNDS = np.array([[0.15, -0.45, -0.03], [0.95, 0.45, 0.40]])
+
+
+def _install(site: Path, package: str, dist_name: str, group: str, entry: str, monkeypatch) -> Path:
+    """An example package as pip installs it: its ``src`` importable and a dist-info declaring ``entry`` in
+    ``group``; returns the package's ``src`` folder."""
+    src = EXAMPLES / package / "src"
+    dist = site / f"{package}-0.1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist_name}\nVersion: 0.1.0\n")
+    (dist / "entry_points.txt").write_text(f"[{group}]\n{entry}\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.syspath_prepend(str(src))
+    return src
 
 
 @pytest.fixture
 def installed_plane_fill(tmp_path, monkeypatch):
-    """The example plug-in as pip would install it: its package importable and a dist-info with its entry point."""
+    """The example perception plug-in installed (workers find it through PYTHONPATH too)."""
     site = tmp_path / "site"
-    dist = site / "torm_plane_fill-0.1.0.dist-info"
-    dist.mkdir(parents=True)
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: torm-plane-fill\nVersion: 0.1.0\n")
-    (dist / "entry_points.txt").write_text("[torm.methods]\nplane_fill = torm_plane_fill:PlaneFill\n")
-    monkeypatch.syspath_prepend(str(site))
-    monkeypatch.syspath_prepend(str(EXAMPLE_SRC))
-    monkeypatch.setenv("PYTHONPATH", f"{EXAMPLE_SRC}:{site}:{Path(__file__).parent}")
+    src = _install(site, "torm_plane_fill", "torm-plane-fill", "torm.methods", "plane_fill = torm_plane_fill:PlaneFill",
+                   monkeypatch)
+    monkeypatch.setenv("PYTHONPATH", f"{src}:{site}:{Path(__file__).parent}")
     yield "plane_fill"
     sys.modules.pop("torm_plane_fill", None)
 
 
 @pytest.fixture
 def installed_scene_graspnet(tmp_path, monkeypatch):
-    """The example planner plug-in installed (dist-info with its ``torm.planners`` entry point) and a tiny model."""
-    src = Path(__file__).resolve().parents[1] / "examples" / "torm_scene_graspnet" / "src"
-    site = tmp_path / "site_planner"
-    dist = site / "torm_scene_graspnet-0.1.0.dist-info"
-    dist.mkdir(parents=True)
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: torm-scene-graspnet\nVersion: 0.1.0\n")
-    (dist / "entry_points.txt").write_text("[torm.planners]\nscene_graspnet = torm_scene_graspnet:SceneGraspNet\n")
-    monkeypatch.syspath_prepend(str(site))
-    monkeypatch.syspath_prepend(str(src))
+    """The example planner plug-in installed (its ``torm.planners`` entry point) and a tiny model."""
+    _install(tmp_path / "site_planner", "torm_scene_graspnet", "torm-scene-graspnet", "torm.planners",
+             "scene_graspnet = torm_scene_graspnet:SceneGraspNet", monkeypatch)
     from torm_scene_graspnet.tiny_model import build_tiny_model
 
     yield build_tiny_model(tmp_path / "tiny_scene_graspnet.onnx")
