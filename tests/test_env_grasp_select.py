@@ -28,7 +28,8 @@ def test_planner_best_candidate_picks_the_rw1_cylinder():
     env = TormGraspSelectEnv(scenario="rw1", perception="oracle", render_mode="rgb_array")
     try:
         obs, info = env.reset(seed=0)
-        assert info["target_object"] == 1 and info["n_candidates"] == 8 and obs["valid"].tolist() == [1] * 8
+        assert info["target_label"] == 1000 and info["n_perceived"] == 1 and info["n_candidates"] == 8
+        assert obs["valid"].tolist() == [1] * 8
         cands = env.candidates
         scores = [g.score for g in cands]
         assert scores == sorted(scores, reverse=True)  # index 0 = the planner's best
@@ -46,6 +47,7 @@ def test_planner_best_candidate_picks_the_rw1_cylinder():
         obs2, reward, terminated, truncated, info = env.step(0)
         assert reward == 1.0 and terminated and not truncated, info
         assert info["outcome"] == "success" and info["pick"]["judgement"]["lift_m"] >= 0.24
+        assert info["picked_object"] == 1  # the judge (ground truth) names the real object that was picked
         moved = np.linalg.norm(env.backend.ground_truth.object_poses()[1][:2, 3] - rest[:2])
         assert abs(moved - 0.20) < 0.01  # really translated 20 cm and put back
         assert env.render().shape == (240, 320, 3)
@@ -54,6 +56,8 @@ def test_planner_best_candidate_picks_the_rw1_cylinder():
         # the same seed gives the same candidates
         obs3, _ = env.reset(seed=0)
         assert np.array_equal(obs3["candidates"], obs["candidates"])
+        _, reward3, *_ = env.step(0)
+        assert reward3 == reward
     finally:
         env.close()
 
@@ -95,3 +99,50 @@ def test_measured_variant_draws_the_harness_realism_per_layout():
         env.close()
     with pytest.raises(Exception, match="realism"):
         gym.make("torm/TormGraspSelect-v0", realism="perfect")
+
+
+def test_perception_and_planning_run_on_the_loop_view_without_ground_truth(monkeypatch):
+    """The env perceives through the harness's loop functions on a LoopBackend: a ground-truth read fails there."""
+    import torm.loop
+    from torm.backend.blind import GroundTruthAccessError, LoopBackend
+
+    seen = {}
+    real_perceive = torm.loop.perceive
+
+    def spy(config, backend, rng, timings, **kw):
+        seen["backend"] = backend
+        with pytest.raises(GroundTruthAccessError):
+            backend.ground_truth  # noqa: B018
+        return real_perceive(config, backend, rng, timings, **kw)
+
+    monkeypatch.setattr(torm.loop, "perceive", spy)
+    env = TormGraspSelectEnv(scenario="rw1", top_k=2, n_points=256, n_views=4)
+    try:
+        _, info = env.reset(seed=2)
+        assert isinstance(seen["backend"], LoopBackend)
+        assert info["perception_info"]["table_height_m"] == pytest.approx(0.0)  # the cell's declaration
+        assert env.trial.scenario == "rw1" and env.trial.seed == 2 and env.trial.method == "oracle"
+    finally:
+        env.close()
+
+
+def test_suite_draws_scenarios_by_seed_and_overrides_reach_the_trial_config():
+    from torm.env.grasp_select_env import GraspSelectEnvConfig
+
+    cfg = GraspSelectEnvConfig(suite="rw", perception="torm", segmenter="noisy", realism="measured",
+                               trial_overrides=("reconstruction.grid_res=48",))
+    assert cfg.scenarios == tuple(f"rw{i}" for i in range(1, 9))
+    trial = cfg.trial_config("rw4", 7)
+    assert (trial.scenario, trial.seed, trial.method) == ("rw4", 7, "torm")
+    assert trial.segmentation.segmenter == "noisy" and trial.world.realism == "measured"
+    assert trial.reconstruction.grid_res == 48 and trial.grasp.top_k == cfg.top_k
+    with pytest.raises(ConfigError, match="grid_rez"):
+        GraspSelectEnvConfig(trial_overrides=("reconstruction.grid_rez=48",))
+    with pytest.raises(UnknownNameError, match="syn_hard"):
+        GraspSelectEnvConfig(suite="hard")
+    env = TormGraspSelectEnv(suite="rw", top_k=2, n_points=256, n_views=4)
+    try:
+        drawn = [env.reset(seed=s)[1]["scenario"] for s in (0, 1, 2, 0)]
+        assert drawn[0] == drawn[3] and all(d.startswith("rw") for d in drawn)
+    finally:
+        env.close()

@@ -5,8 +5,10 @@ Importing :mod:`torm` (or :mod:`torm.env`) registers, with versioned ids:
 - ``torm/TormPick-v0``: low-level pick for RL (:class:`torm.env.pick_env.TormPickEnv`): images and
   proprioception in, end-effector delta poses and a gripper command out; the paper's lift test as reward.
 - ``torm/TormGraspSelect-v0``: high-level grasp selection (:class:`torm.env.grasp_select_env.TormGraspSelectEnv`):
-  choose one of the planner's top-K grasps for a target object; reward 1 when the executed pick passes the
-  paper's success test.
+  choose one of the planner's top-K grasps for a perceived object; reward 1 when the executed pick passes the
+  paper's success test. Variants: ``torm/TormGraspSelectMeasured-v0`` (the ``measured`` world, oracle
+  perception) and ``torm/TormGraspSelectHard-v0`` (rw suite, ``measured`` world, TORM perception through the
+  segmentation error model).
 
 ``gymnasium.make("torm/TormPick-v0")`` works after ``import torm``; as in Gymnasium-Robotics,
 ``gymnasium.register_envs(torm)`` keeps linters from flagging that import as unused. Without any import,
@@ -28,6 +30,12 @@ GRASP_SELECT_ID = "torm/TormGraspSelect-v0"
 #: TormGraspSelect in the harness's ``measured`` world (contact, grip force, mass, calibration and execution
 #: errors drawn per layout from sourced ranges), where a grasp choice can fail as the harness's picks do.
 GRASP_SELECT_MEASURED_ID = "torm/TormGraspSelectMeasured-v0"
+#: The realistic, hard grasp-selection variant: the rw suite drawn per reset, the ``measured`` world, and the
+#: TORM pipeline perceiving through the segmentation error model (``noisy``, the paper preset), so the planner
+#: plans on imperfect reconstructions and a choice among its candidates matters.
+GRASP_SELECT_HARD_ID = "torm/TormGraspSelectHard-v0"
+#: Settings of :data:`GRASP_SELECT_HARD_ID` (keyword arguments of its spec).
+GRASP_SELECT_HARD_KWARGS = {"suite": "rw", "realism": "measured", "perception": "torm", "segmenter": "noisy"}
 
 
 def register_envs() -> None:
@@ -42,9 +50,13 @@ def register_envs() -> None:
     if GRASP_SELECT_MEASURED_ID not in registry:
         gymnasium.register(id=GRASP_SELECT_MEASURED_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
                            max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS, kwargs={"realism": "measured"})
+    if GRASP_SELECT_HARD_ID not in registry:
+        gymnasium.register(id=GRASP_SELECT_HARD_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
+                           max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS, kwargs=dict(GRASP_SELECT_HARD_KWARGS))
 
 
 register_envs()
 
-__all__ = ["GRASP_SELECT_ID", "GRASP_SELECT_MAX_EPISODE_STEPS", "GRASP_SELECT_MEASURED_ID", "PICK_ID",
+__all__ = ["GRASP_SELECT_HARD_ID", "GRASP_SELECT_HARD_KWARGS", "GRASP_SELECT_ID", "GRASP_SELECT_MAX_EPISODE_STEPS",
+           "GRASP_SELECT_MEASURED_ID", "PICK_ID",
            "PICK_MAX_EPISODE_STEPS", "register_envs"]

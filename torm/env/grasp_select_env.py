@@ -1,31 +1,43 @@
-"""``torm/TormGraspSelect-v0``: choose one of the grasp planner's top-K candidates for a target object.
+"""``torm/TormGraspSelect-v0``: choose one of the grasp planner's top-K candidates for a perceived object.
 
-A high-level, one-step env for comparing grasp-selection policies with TORM's own choice. At reset the
-scene (scenario + layout seed) is built, perceived (``perception``: ``oracle`` = samples of the true meshes,
-fast; ``torm`` = multi-view capture -> silhouettes -> reconstruction, slow; ``depth`` = the single-view
-sensor-depth baseline) and planned with :func:`torm.grasp.planner.plan_grasps` (``top_k`` = K); one target
-object is chosen. The action ``Discrete(K)`` picks a candidate: **index 0 is the planner's best (TORM's
-choice)**, then in the planner's order. The step executes that grasp with
-:func:`torm.execution.pick.execute_pick` (pre-grasp, approach, close, lift 25 cm, translate 20 cm towards
-free table space, lower, release) and judges it by the paper's success test
-(:func:`torm.execution.success.judge_pick`): reward 1.0 on success, else 0.0. Every episode is one step
-(``terminated`` is always True after it). Choosing an index without a candidate (``valid[i] == 0``) gives
-reward 0 with ``info["invalid_choice"]`` (nothing moves).
+A high-level, one-step env for comparing grasp-selection policies with TORM's own choice, in the harness's world.
+At reset a scenario (``scenario``, or one drawn from ``suite``) is built at a layout seed, with the harness's
+realism profile, renderer and depth model (:func:`torm.pipeline.make_backend`); it is perceived and planned by the
+harness's own loop functions (:func:`torm.loop.perceive`, :func:`torm.loop.plan_with_planner`) on the loop's view
+of the backend (:class:`torm.backend.blind.LoopBackend`), which refuses ground truth: ``perception`` = ``oracle``
+(samples of the true meshes, granted explicitly), ``torm`` (capture -> silhouettes from ``segmenter`` ->
+reconstruction), ``depth`` (single-view sensor depth) or ``depth_fusion``. The table height is the cell's declared
+one (or fitted to the capture with ``table="capture"``), fixtures reach the planner through their declaration. One
+perceived object with candidates becomes the target (a phantom reconstruction can be one, as on a real robot).
 
-Observation (``Dict``), world frame (robot base, z up, m):
+The action ``Discrete(K)`` picks a candidate: **index 0 is the planner's best (TORM's choice)**, then in the
+planner's order. The step executes that grasp with :func:`torm.execution.pick.execute_pick` (pre-grasp, approach,
+close, lift 25 cm, translate 20 cm towards free table space, lower, release); the simulator's judge
+(:class:`sim.judge.PickJudge`) decides from the physics what happened, by the paper's success test: reward 1.0 on
+success, else 0.0 (a grasp at a phantom is ``phantom_attempt``). Every episode is one step (``terminated`` is
+always True after it). Choosing an index without a candidate (``valid[i] == 0``) gives reward 0 with
+``info["invalid_choice"]`` (nothing moves).
+
+Observation (``Dict``), world frame (robot base, z up, m), all from perception:
 
 - ``candidates`` (K, F) float32, one row per candidate (zeros for missing ones), columns
   :data:`FEATURE_NAMES`: grasp centre minus the object centroid (3, m), approach direction (3), closing
   axis (3), opening width (m), fingertip depth beyond the centre (m), planner score (0..1), grasp centre
   height above the table (m), clearance = distance from the grasp centre to the nearest point of another
-  object (m, capped at ``max_clearance``), tilt of the approach from straight down (rad), planner rank / K.
+  perceived object (m, capped at ``max_clearance``), tilt of the approach from straight down (rad), planner rank / K.
 - ``valid`` (K,) int8: 1 where a candidate exists.
 - ``object_summary`` (10,) float32 (:data:`SUMMARY_NAMES`): centroid (3, m), bounding-box size (3, m),
   principal standard deviations of the points (3, m, descending), number of candidates / K.
 - ``object_points`` (M, 3) float32: M points of the target's perceived cloud relative to its centroid (m).
 
-Seeding: ``reset(seed=s)`` uses layout seed ``s`` and seeds the target choice and the planner's sampling
-from the env RNG; the same seed gives the same observation, and the same action the same outcome.
+``info`` at reset names the scenario, layout seed, perception, segmenter, renderer, depth model, realism profile
+(and its draw), the pad force used and the perception's timings; after the step, the outcome, ``is_success``, the
+real object the judge saw picked (``picked_object``, None for a phantom) and the pick's record.
+
+Seeding: ``reset(seed=s)`` uses layout seed ``s``; the scenario draw, the perception's and planner's sampling and
+the target choice come from the env RNG seeded by ``s``, so the same seed gives the same observation and the same
+action the same outcome. Perception and planning of the current layout are cached per seed (both are
+deterministic), so resetting the same seed again only resets the physics.
 """
 
 from __future__ import annotations
@@ -33,7 +45,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -45,12 +57,16 @@ from torm.env.errors import InvalidActionError
 from torm.errors import ConfigError, ReconstructionError, UnknownNameError
 from torm.execution.pick import PickConfig
 from torm.execution.success import SuccessCriteria
+from torm.grasp.gripper import GripperGeometry
 from torm.grasp.planner import GraspPlannerConfig
-from torm.types import Grasp, ObjectPointCloud, TriMesh
+from torm.types import Grasp, ObjectPointCloud
+
+if TYPE_CHECKING:
+    from torm.pipeline import TrialConfig
 
 log = logging.getLogger(__name__)
 
-PERCEPTIONS = ("oracle", "torm", "depth")
+PERCEPTIONS = ("oracle", "torm", "depth", "depth_fusion")
 FEATURE_NAMES = ("dx", "dy", "dz", "approach_x", "approach_y", "approach_z", "closing_x", "closing_y", "closing_z",
                  "width", "depth", "score", "height", "clearance", "tilt", "rank")
 #: Every feature is a distance (m), a unit-vector component, an angle (rad) or a fraction: |value| <= this.
@@ -62,60 +78,67 @@ SUMMARY_NAMES = ("cx", "cy", "cz", "size_x", "size_y", "size_z", "std_0", "std_1
 class GraspSelectEnvConfig:
     """Settings of :class:`TormGraspSelectEnv` (m, s).
 
+    The world, perception and planning are the harness's (:class:`torm.pipeline.TrialConfig`): the convenience
+    fields below set the usual ones, ``trial_overrides`` any other (``section.key=value``, as ``torm trial --set``).
+
     Attributes:
-        scenario: scenario name, e.g. "rw1".
+        scenario: scenario name, e.g. "rw1" (used when ``suite`` is empty).
+        suite: draw the scenario of every reset from this suite (``rw``, ``syn``, ``syn_hard``, ``lab``; ``torm scenes
+            list``), uniformly with the env RNG; empty = always ``scenario``.
         robot: robot folder name.
         layout_seed: fixed layout for unseeded resets; None draws one from the env RNG per reset.
-        target_object: instance id of the object to pick; 0 = a random object that has candidates.
-        perception: "oracle" (true meshes), "torm" (reconstruction) or "depth" (single-view sensor depth).
+        perception: the harness's method: "oracle" (samples of the true meshes, granted by the simulator), "torm"
+            (capture -> silhouettes -> reconstruction), "depth" (single-view sensor depth) or "depth_fusion".
+        segmenter: silhouette source of "torm" (``gt``, ``noisy``, ``learned``, ``grounded_sam``, ``difference``).
+        renderer: ``mujoco`` or ``pbr`` (images for image-based segmenters).
+        depth_model: the simulated depth camera (``ideal``, ``statistical``, ``stereo``).
+        realism: the world's realism profile (``ideal``, ``measured``, ``stress``: contact, grip force, object mass,
+            calibration and execution errors drawn per layout from sourced ranges, :mod:`sim.realism`); the drawn
+            pad force replaces ``pick.grip_force``.
+        stress: the multiplier of the ``stress`` profile.
+        table: where the table height comes from: ``declared`` (the cell's declaration) or ``capture`` (fitted).
         top_k: K, candidates per object (the action space size).
-        n_points: points per object cloud for "oracle" / "depth" perception.
+        n_points: points per object cloud (``reconstruction.points_per_object``).
         object_points: M, points of the target's cloud in the observation.
         max_clearance: cap of the clearance feature (m).
-        n_views, capture_scale: capture for "torm" / "depth" perception (views; image scale of 1280x720).
-        segmenter: silhouette source for "torm" ("gt", "noisy", "grounded_sam").
+        n_views, capture_scale: capture for image/depth perception (views; image scale of 1280x720).
         planner: grasp planner settings (its ``top_k`` is replaced by ``top_k``).
         pick: pick execution settings.
         criteria: the success test's tolerances.
         render_size: (H, W) of ``render()`` images.
-        realism: the harness's realism profile (``ideal``, ``measured``, ``stress``: contact, grip force, object
-            mass, calibration and execution errors drawn per layout from the sourced ranges, :mod:`sim.realism`),
-            so that a grasp choice can fail the way the harness's picks do; the drawn pad force replaces
-            ``pick.grip_force``.
-        stress: the multiplier of the ``stress`` profile.
+        trial_overrides: further ``section.key=value`` settings of the trial config (e.g.
+            ``("segmentation.options.model=/path/seg.onnx",)``); they win over the fields above.
     """
 
     scenario: str = "rw1"
+    suite: str = ""
     robot: str = "inovo_2f85"
     layout_seed: int | None = None
-    target_object: int = 0
     perception: str = "oracle"
+    segmenter: str = "gt"
+    renderer: str = "mujoco"
+    depth_model: str = "ideal"
+    realism: str = "ideal"
+    stress: float = 1.0
+    table: str = "declared"
     top_k: int = 8
     n_points: int = 1024
     object_points: int = 64
     max_clearance: float = 0.3
     n_views: int = 50
     capture_scale: float = 0.5
-    segmenter: str = "gt"
     planner: GraspPlannerConfig = field(default_factory=GraspPlannerConfig)
     pick: PickConfig = field(default_factory=PickConfig)
     criteria: SuccessCriteria = field(default_factory=SuccessCriteria)
     render_size: tuple[int, int] = (240, 320)
-    realism: str = "ideal"
-    stress: float = 1.0
+    trial_overrides: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        from torm.pipeline import REALISM_PROFILES
-
-        if self.realism not in REALISM_PROFILES:
-            raise UnknownNameError("realism", self.realism, REALISM_PROFILES)
         if self.perception not in PERCEPTIONS:
             raise UnknownNameError("perception", self.perception, PERCEPTIONS)
         for name in ("top_k", "n_points", "object_points", "n_views"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"GraspSelectEnvConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if self.target_object < 0:
-            raise ConfigError(f"GraspSelectEnvConfig.target_object must be >= 0 (0 = random), got {self.target_object}")
         if not self.max_clearance > 0 or not self.capture_scale > 0:
             raise ConfigError("GraspSelectEnvConfig.max_clearance and capture_scale must be positive")
         if self.layout_seed is not None and self.layout_seed < 0:
@@ -124,6 +147,36 @@ class GraspSelectEnvConfig:
         if len(hw) != 2 or min(hw) < 8:
             raise ConfigError(f"GraspSelectEnvConfig.render_size must be (H, W) >= 8 pixels, got {hw}")
         object.__setattr__(self, "render_size", hw)
+        object.__setattr__(self, "trial_overrides", tuple(str(o) for o in self.trial_overrides))
+        if self.suite:
+            from sim.scenes.scenario import list_scenarios, list_suites
+
+            if self.suite not in list_suites():
+                raise UnknownNameError("suite", self.suite, list_suites())
+            object.__setattr__(self, "_scenarios", tuple(list_scenarios(self.suite)))
+        else:
+            object.__setattr__(self, "_scenarios", (self.scenario,))
+        self.trial_config(self._scenarios[0], 0)  # every harness setting is checked now, not at the first reset
+
+    @property
+    def scenarios(self) -> tuple[str, ...]:
+        """The scenarios resets draw from (``suite``'s, or ``scenario`` alone)."""
+        return self._scenarios
+
+    def trial_config(self, scenario: str, layout: int) -> TrialConfig:
+        """The harness's trial config of one layout: the world, capture, perception and planning this env uses."""
+        from torm.config import from_dict, to_dict
+        from torm.pipeline import TrialConfig
+
+        data = {"scenario": scenario, "seed": int(layout), "method": self.perception, "robot": self.robot,
+                "table": self.table, "world": {"realism": self.realism, "stress": self.stress},
+                "capture": {"n_views": self.n_views, "scale": self.capture_scale, "renderer": self.renderer,
+                            "depth_model": self.depth_model},
+                "segmentation": {"segmenter": self.segmenter},
+                "reconstruction": {"points_per_object": self.n_points},
+                "grasp": {**to_dict(self.planner), "top_k": self.top_k}, "pick": to_dict(self.pick),
+                "success": to_dict(self.criteria)}
+        return from_dict(TrialConfig, data, self.trial_overrides, where="GraspSelectEnvConfig.trial_overrides")
 
 
 def candidate_features(grasps: list[Grasp], centroid: np.ndarray, others_nx3: np.ndarray, top_k: int,
@@ -174,60 +227,56 @@ class TormGraspSelectEnv(gym.Env):
             "object_summary": spaces.Box(-b, b, (len(SUMMARY_NAMES),), np.float32),
             "object_points": spaces.Box(-b, b, (M, 3), np.float32),
         })
-        self._planner_cfg = dataclasses.replace(cfg.planner, top_k=K)
-        self._world = self._backend = self._render_cams = None
-        self._layout: int | None = None
+        self._backend = self._loop = self._render_cams = None
+        self._key: tuple[str, int] | None = None
+        self._perceived: tuple[Any, ...] | None = None
         self._grasps: list[Grasp] = []
         self._done = True
 
     # ------------------------------------------------------------------------------------------ properties
     @property
     def backend(self):
-        """The :class:`sim.backend.SimBackend` of the current layout (None before the first reset)."""
+        """The full :class:`sim.backend.SimBackend` of the current layout, ground truth included (for evaluation,
+        rendering and tests; the env's perception and execution use only its loop view). None before a reset."""
         return self._backend
 
     @property
+    def trial(self):
+        """The :class:`torm.pipeline.TrialConfig` of the current layout (None before the first reset)."""
+        return self._trial
+
+    @property
     def candidates(self) -> list[Grasp]:
-        """The target object's planner candidates of this episode, best first (action i executes ``candidates[i]``)."""
+        """The target's planner candidates of this episode, best first (action i executes ``candidates[i]``)."""
         return list(self._grasps)
 
     @property
-    def target_object(self) -> int:
-        """Instance id of this episode's target object."""
+    def target_label(self) -> int:
+        """Perception label (1000 + k) of this episode's target reconstruction."""
         return self._target
 
     # ------------------------------------------------------------------------------------------ building
-    def _build(self, layout: int) -> None:
-        from sim.backend import SimBackend
-        from sim.camera_rig import CameraRigConfig
-        from sim.world import build_world
+    def _build(self, scenario: str, layout: int) -> None:
+        from torm.backend.blind import LoopBackend
         from torm.execution.pick import ToolFrame
+        from torm.pipeline import make_backend
 
         cfg = self.config
         self._close_world()
-        realism = None
-        if cfg.realism != "ideal":  # drawn per layout from the sourced ranges, as a harness trial draws them
-            from sim.realism import sample_realism
-            from sim.scenes.objects import get_object
-            from sim.scenes.scenario import get_scenario
-
-            hollow = [get_object(n).hollow for n in get_scenario(cfg.scenario).objects]
-            realism = sample_realism(cfg.realism, int(layout), hollow, stress=cfg.stress)
-        world = build_world(cfg.scenario, int(layout), robot=cfg.robot, realism=realism)
-        cam = CameraRigConfig(n_views=cfg.n_views, scale=cfg.capture_scale)
-        backend = SimBackend(world, camera_config=cam, realism=realism)
-        self._world, self._backend, self._layout = world, backend, int(layout)
-        self._pick = cfg.pick
-        if realism is not None and realism.grip_force_n is not None:
+        self._trial = trial = cfg.trial_config(scenario, layout)
+        backend = make_backend(trial)
+        self._backend, self._loop, self._key = backend, LoopBackend(backend), (scenario, int(layout))
+        self._perceived = None
+        self._pick = trial.pick
+        realism = getattr(backend, "realism", None)
+        if realism is not None and realism.grip_force_n is not None:  # as run_trial: the drawn pad force is used
             lo, hi = backend.gripper.force_range_n
-            self._pick = dataclasses.replace(cfg.pick, grip_force=min(max(float(realism.grip_force_n), lo), hi))
-        self._tool = ToolFrame.from_robot_config(world.robot_config)
-        if cfg.target_object > len(world.objects):
-            raise ConfigError(f"target_object {cfg.target_object} but scenario {cfg.scenario!r} has objects "
-                              f"1..{len(world.objects)}")
+            self._pick = dataclasses.replace(trial.pick, grip_force=min(max(float(realism.grip_force_n), lo), hi))
+        self._tool = ToolFrame.from_robot_config(backend.robot_config)
         if self.render_mode == "rgb_array":
             from torm.env.cameras import EnvCameras
 
+            world = backend.world
             g = world.robot_config.gripper.geometry
             self._render_cams = EnvCameras(world.model, world.data, *cfg.render_size,
                                            tcp_site=world.robot_config.arm.tcp_site,
@@ -239,52 +288,47 @@ class TormGraspSelectEnv(gym.Env):
             self._render_cams = None
         if self._backend is not None:
             self._backend.close()
-        self._world = self._backend = None
-        self._layout = None
+        self._backend = self._loop = None
+        self._key = None
+        self._trial = None
 
-    def _true_meshes(self) -> dict[int, TriMesh]:
-        w = self._world
-        return {o.instance_id: TriMesh(m.vertices, m.faces) for o, m in zip(w.objects, w.object_meshes_world(),
-                                                                          strict=True)}
+    def _perceive_and_plan(self, perception_seed: int) -> tuple[Any, ...]:
+        """Perceive and plan through the harness's loop functions on the loop's view of the backend (no ground
+        truth; the oracle's meshes are granted explicitly). Cached per (layout, seed): both are deterministic."""
+        if self._perceived is not None and self._perceived[0] == perception_seed:
+            return self._perceived
+        from torm.loop import perceive, plan_with_planner
+        from torm.perception import Perception
 
-    def _perceive(self, rng: np.random.Generator) -> tuple[list[ObjectPointCloud], list[TriMesh | None], dict]:
-        """Per-object clouds labelled with the true instance ids (unmatched reconstructions get 1000 + k)."""
-        from torm.perception import (
-            depth_point_clouds,
-            label_by_ground_truth,
-            most_top_down_view,
-            oracle_point_clouds,
-            perceive_torm,
-        )
-
-        cfg = self.config
-        truth = self._true_meshes()
-        if cfg.perception == "oracle":
-            clouds, meshes = oracle_point_clouds(truth, cfg.n_points, rng)
-            return clouds, meshes, {}
-        capture = self._backend.capture(cfg.n_views)
-        if cfg.perception == "depth":
-            view = most_top_down_view(capture)
-            return depth_point_clouds(capture, view, cfg.n_points, rng), None, {"view": view}
-        from torm.reconstruction.api import ReconstructionConfig
-        from torm.segmentation import make_segmenter
-
-        seg_opts = {"seed": int(rng.integers(2**31 - 1))} if cfg.segmenter == "noisy" else None
-        per = perceive_torm(capture, make_segmenter(cfg.segmenter, seg_opts), ReconstructionConfig())
-        clouds, matching = label_by_ground_truth(per.point_clouds, truth)
-        return clouds, list(per.meshes), {"matching": matching, **per.info}
+        trial, rng = self._trial, np.random.default_rng(perception_seed)
+        oracle = self._backend.ground_truth.object_meshes if trial.method == "oracle" else None
+        timings: dict[str, float] = {}
+        try:
+            per = perceive(trial, self._loop, rng, timings, oracle_meshes=oracle)
+            table_z = float(per.info["capture"].table_height)
+        except ReconstructionError as exc:
+            per, table_z = Perception([], [], {"error": str(exc)}), float(self._loop.calibration.table_height)
+        for k, c in enumerate(per.point_clouds):  # perception labels, as the loop gives them: 1000, 1001, ...
+            per.point_clouds[k] = ObjectPointCloud(c.points_nx3, c.normals_nx3, 1000 + k)
+        gripper = GripperGeometry.from_robot_config(dataclasses.asdict(self._loop.robot_config.gripper.geometry))
+        obstacles = self._loop.calibration.obstacle_points()
+        grasps = plan_with_planner(trial, per, table_z, gripper, rng, obstacles) if per.point_clouds else []
+        info = {k: v for k, v in per.info.items() if isinstance(v, (int, float, str, bool))}
+        info["table_height_m"] = table_z
+        info.update({f"{k}_s": v for k, v in timings.items()})
+        self._perceived = (perception_seed, per.point_clouds, [list(g) for g in grasps], table_z, obstacles, info)
+        return self._perceived
 
     # ------------------------------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         from torm.execution.pick import make_ik_solver
-        from torm.grasp.gripper import GripperGeometry
-        from torm.grasp.planner import plan_grasps
 
         super().reset(seed=seed)
         options = dict(options or {})
-        unknown = set(options) - {"layout_seed", "target_object"}
+        valid_opts = ["layout_seed", "scenario", "target"]
+        unknown = set(options) - set(valid_opts)
         if unknown:
-            raise UnknownNameError("reset option", sorted(unknown)[0], ["layout_seed", "target_object"])
+            raise UnknownNameError("reset option", sorted(unknown)[0], valid_opts)
         cfg = self.config
         if options.get("layout_seed") is not None:
             layout = int(options["layout_seed"])
@@ -294,85 +338,91 @@ class TormGraspSelectEnv(gym.Env):
             layout = cfg.layout_seed
         else:
             layout = int(self.np_random.integers(0, 2**31 - 1))
-        if layout != self._layout or self._backend is None:
-            self._build(layout)
+        scenario = str(options.get("scenario") or cfg.scenarios[int(self.np_random.integers(len(cfg.scenarios)))])
+        if (scenario, layout) != self._key or self._backend is None:
+            self._build(scenario, layout)
         else:
             self._backend.reset()
-        self._ik = make_ik_solver(self._world.robot_config, cfg.pick.ik)  # fresh: no state carried over
-        rng = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
-        info: dict[str, Any] = {"layout_seed": layout, "perception": cfg.perception}
-        try:
-            clouds, meshes, pinfo = self._perceive(rng)
-        except ReconstructionError as exc:
-            clouds, meshes, pinfo = [], [], {"error": str(exc)}
-        info["perception_info"] = {k: v for k, v in pinfo.items() if isinstance(v, (int, float, str, bool))}
-        gripper = GripperGeometry.from_robot_config(dataclasses.asdict(self._world.robot_config.gripper.geometry))
-        table_z = float(self._world.table_height)
-        grasps = plan_grasps(clouds, meshes, table_z, gripper, self._planner_cfg, rng) if clouds else []
-        by_id = {c.object_index: (c, g) for c, g in zip(clouds, grasps, strict=True)}
-        self._clouds = by_id
-        target = int(options.get("target_object") or cfg.target_object)
-        if target == 0:
-            ids = sorted(k for k, (_, g) in by_id.items() if g and k < 1000) or [o.instance_id
-                                                                                 for o in self._world.objects]
-            target = int(ids[int(self.np_random.integers(len(ids)))])
-        if not 1 <= target <= len(self._world.objects):
-            raise ConfigError(f"target_object {target} but the scene has objects 1..{len(self._world.objects)}")
+        self._ik = make_ik_solver(self._loop.robot_config, self._pick.ik)  # fresh: no state carried over
+        _, clouds, grasps, table_z, obstacles, pinfo = self._perceive_and_plan(int(self.np_random.integers(2**63 - 1)))
+        self._table_z, self._obstacles = table_z, obstacles
+        by_label = {c.object_index: (c, g) for c, g in zip(clouds, grasps, strict=True)}
+        self._clouds = by_label
+        order = sorted(by_label, key=lambda k: -(by_label[k][1][0].score if by_label[k][1] else -np.inf))
+        with_cands = [k for k in order if by_label[k][1]]
+        if options.get("target") is not None:
+            t = int(options["target"])
+            if not 0 <= t < len(order):
+                raise ConfigError(f"reset option target={t}: this layout has {len(order)} perceived objects "
+                                  f"(indices 0..{len(order) - 1} in the planner's order)")
+            target = order[t]
+        elif with_cands:
+            target = with_cands[int(self.np_random.integers(len(with_cands)))]
+        else:
+            target = order[0] if order else -1
         self._target = target
-        cloud, self._grasps = by_id.get(target, (None, []))
-        self._grasps = list(self._grasps)[: cfg.top_k]
-        if cloud is None:  # the target was not perceived: observe its true centroid only
-            from torm.metrics import mesh_centroid
-
-            c = mesh_centroid(self._true_meshes()[target])
-            pts = np.tile(c, (cfg.object_points, 1))
+        cloud, grasps_t = by_label.get(target, (None, []))
+        self._grasps = list(grasps_t)[: cfg.top_k]
+        if cloud is None:  # nothing perceived: an empty observation (every candidate invalid)
+            pts = np.zeros((cfg.object_points, 3))
+            self._centroid = np.zeros(3)
         else:
             pts = cloud.points_nx3
-        others = [c.points_nx3 for k, (c, _) in by_id.items() if k != target]
+            self._centroid = pts.mean(axis=0)
+        others = [c.points_nx3 for k, (c, _) in by_label.items() if k != target]
         self._others = np.concatenate(others) if others else np.zeros((0, 3))
-        self._centroid = pts.mean(axis=0)
         sub = pts[np.linspace(0, len(pts) - 1, cfg.object_points).astype(int)]
         self._obs = {
             "candidates": candidate_features(self._grasps, self._centroid, self._others, cfg.top_k, table_z,
                                              cfg.max_clearance),
             "valid": (np.arange(cfg.top_k) < len(self._grasps)).astype(np.int8),
-            "object_summary": object_summary(pts, len(self._grasps), cfg.top_k),
+            "object_summary": (object_summary(pts, len(self._grasps), cfg.top_k) if cloud is not None
+                               else np.zeros(len(SUMMARY_NAMES), np.float32)),
             "object_points": (sub - self._centroid).astype(np.float32),
         }
-        info.update(target_object=target, n_candidates=len(self._grasps), perceived=cloud is not None,
-                    scenario=cfg.scenario, layout_seed=self._layout, perception=cfg.perception, realism=cfg.realism,
-                    grip_force_n=self._pick.grip_force)
+        realism = getattr(self._backend, "realism", None)
+        info: dict[str, Any] = {
+            "scenario": scenario, "layout_seed": layout, "perception": cfg.perception, "segmenter": cfg.segmenter,
+            "renderer": cfg.renderer, "depth_model": cfg.depth_model, "realism": cfg.realism,
+            "grip_force_n": self._pick.grip_force, "target_label": target, "n_perceived": len(order),
+            "n_candidates": len(self._grasps), "perception_info": dict(pinfo),
+            "realism_drawn": realism.as_dict() if realism is not None else {"profile": cfg.realism},
+        }
         self._done = False
         return self._observation(), info
 
     def step(self, action):
+        from sim.judge import PickJudge
         from torm.execution.pick import execute_pick, free_directions
 
         if self._backend is None or self._done:
             raise ConfigError("call reset() before step(); TormGraspSelect episodes are one step long")
         i = self._check_action(action)
-        cfg = self.config
         self._done = True
-        info: dict[str, Any] = {"target_object": self._target, "candidate": i, "invalid_choice": False}
+        info: dict[str, Any] = {"target_label": self._target, "candidate": i, "invalid_choice": False}
         if i >= len(self._grasps):
             info.update(invalid_choice=True, outcome="no_grasp_found", is_success=False)
             return self._observation(), 0.0, True, False, info
         xy = self._centroid[:2]
         others_xy = [c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in self._clouds.items() if k != self._target]
-        dirs = free_directions(xy, others_xy, self._world.workspace_bounds, cfg.pick.translate_distance)
-        from sim.judge import PickJudge
-
-        judge = PickJudge(self._backend, cfg.criteria, self._pick)  # the reward is the judge's verdict
+        if self._obstacles is not None:
+            others_xy += list(np.unique(np.round(np.asarray(self._obstacles)[:, :2], 2), axis=0))
+        place_area = np.asarray(self._trial.place_area, dtype=float)
+        pick = dataclasses.replace(self._pick, table_height=self._table_z)
+        dirs = free_directions(xy, others_xy, place_area, pick.translate_distance)
+        # the judge (ground truth) watches and decides; the pick itself runs on the loop's view of the backend
+        judge = PickJudge(self._backend, self._trial.success, pick)
         try:
-            loop_res = execute_pick(self._backend, [self._grasps[i]], dirs, self._pick, ik=self._ik, tool=self._tool,
+            loop_res = execute_pick(self._loop, [self._grasps[i]], dirs, pick, ik=self._ik, tool=self._tool,
                                     observer=judge)
         finally:
             judge.close()
         res = judge.verdicts.get(id(loop_res), loop_res)
-        pick = res.as_dict()  # without wall-clock times, so equal seeds and actions give equal infos
-        pick.pop("wall_time_s", None)
-        pick["phases"] = [{"name": p["name"], "sim_s": p["sim_s"]} for p in pick["phases"]]
-        info.update(outcome=res.outcome.value, is_success=res.success, pick=pick)
+        out = res.as_dict()  # without wall-clock times, so equal seeds and actions give equal infos
+        out.pop("wall_time_s", None)
+        out["phases"] = [{"name": p["name"], "sim_s": p["sim_s"]} for p in out["phases"]]
+        info.update(outcome=res.outcome.value, is_success=res.success, picked_object=out.get("target_id"),
+                    pick=out)
         return self._observation(), 1.0 if res.success else 0.0, True, False, info
 
     def render(self):

@@ -125,6 +125,10 @@ class PickEnvConfig:
         control_mode: ``pd_ee_delta_pose`` (the only one: a TCP delta pose and a gripper command, position-
             controlled joints), ManiSkill's name for what the action is.
         pointcloud_points: N of the ``pointcloud`` observation.
+        realism: the harness's realism profile (``ideal``, ``measured``, ``stress``): contact, object mass,
+            calibration and execution errors drawn per layout from the sourced ranges (:mod:`sim.realism`); the
+            draw is in the reset ``info`` (``realism_drawn``).
+        stress: the multiplier of the ``stress`` profile.
     """
 
     scenario: str = "rw1"
@@ -159,8 +163,16 @@ class PickEnvConfig:
     obs_mode: str | None = None
     control_mode: str = "pd_ee_delta_pose"
     pointcloud_points: int = 1024
+    realism: str = "ideal"
+    stress: float = 1.0
 
     def __post_init__(self) -> None:
+        from torm.pipeline import REALISM_PROFILES
+
+        if self.realism not in REALISM_PROFILES:
+            raise UnknownNameError("realism", self.realism, REALISM_PROFILES)
+        if not (np.isfinite(self.stress) and self.stress >= 1):
+            raise ConfigError(f"PickEnvConfig.stress must be >= 1, got {self.stress}")
         if self.obs_mode is not None and self.obs_mode not in OBS_MODES:
             raise UnknownNameError("obs_mode", self.obs_mode, OBS_MODES)
         if self.control_mode not in CONTROL_MODES:
@@ -288,11 +300,20 @@ class TormPickEnv(gym.Env):
         self._free_cameras()
         if self._backend is not None:
             self._backend.close()
-        world = build_world(cfg.scenario, int(layout_seed), robot=cfg.robot)
+        realism = None
+        if cfg.realism != "ideal":  # drawn per layout from the sourced ranges, as a harness trial draws them
+            from sim.realism import sample_realism
+            from sim.scenes.objects import get_object
+            from sim.scenes.scenario import get_scenario
+
+            hollow = [get_object(n).hollow for n in get_scenario(cfg.scenario).objects]
+            realism = sample_realism(cfg.realism, int(layout_seed), hollow, stress=cfg.stress)
+        world = build_world(cfg.scenario, int(layout_seed), robot=cfg.robot, realism=realism)
         if cfg.target_object > len(world.objects):
             raise ConfigError(f"target_object {cfg.target_object} but scenario {cfg.scenario!r} has objects "
                               f"1..{len(world.objects)}")
-        self._world, self._backend, self._layout = world, SimBackend(world), int(layout_seed)
+        self._world, self._layout = world, int(layout_seed)
+        self._backend = SimBackend(world, realism=realism)
         self._ik_factory = lambda: make_ik_solver(self._rcfg, cfg.ik)
         m = world.model
         arm = self._rcfg.arm
@@ -339,7 +360,11 @@ class TormPickEnv(gym.Env):
         self._lifted = False
         self._steps = 0
         self._physics_error = None
-        return self._observation(), self._info(clipped=False, rejected=None, success=False)
+        info = self._info(clipped=False, rejected=None, success=False)
+        realism = self._backend.realism
+        info.update(layout_seed=self._layout, realism=self.config.realism,
+                    realism_drawn=realism.as_dict() if realism is not None else {"profile": "ideal"})
+        return self._observation(), info
 
     def step(self, action):
         if self._backend is None:
