@@ -420,14 +420,16 @@ class ExecutionErrors:
         self.act = np.asarray(actuator_ids, dtype=int)
         self.delay_ticks = int(round((record.latency_s or 0.0) / control_dt))
         self.std = float(record.joint_error_std_rad or 0.0)
-        self.rng = _stream(record.seed, 200)
+        self._seed = record.seed
         self.latency_s = self.delay_ticks * control_dt
-        self.n_motions = 0
-        self.max_abs_error = 0.0
         self.reset()
 
     def reset(self) -> None:
-        """Forget the command history and the current error (after a world reset)."""
+        """Forget the command history and the current error and restart the error stream (after a world reset),
+        so that the same commands after a reset meet the same errors (an env's same seed, same outcome)."""
+        self.rng = _stream(self._seed, 200)
+        self.n_motions = 0
+        self.max_abs_error = 0.0
         n = len(self.act)
         self._fifo: deque[np.ndarray] = deque(maxlen=self.delay_ticks + 1)
         self._e_from = np.zeros(n)

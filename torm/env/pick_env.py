@@ -38,9 +38,10 @@ has also moved ``translation - slip_tolerance`` (0.18 m) horizontally from its r
 The (lower, release) part of the paper's test is not required in this env.
 
 Reward: ``success_reward`` (1.0) on the success step, 0 otherwise; with ``reward_shaping`` a dense term is
-added every step: ``w_reach * (1 - tanh(10 d))`` (d = TCP-to-object distance, m) + ``w_grasp`` when both pads
-touch the object + ``w_lift * clip(lift / lift_height, 0, 1)`` while held (+ ``w_translate`` x the
-translation fraction in ``lift_translate`` mode). Termination: success or physics error.
+added every step: ``w_reach * (1 - tanh(reach_scale * d))`` (d = TCP-to-object distance, m; ``reach_scale``
+10 / m by default) + ``w_grasp`` when both pads touch the object + ``w_lift * clip(lift / lift_height, 0, 1)``
+while held (+ ``w_translate`` x the translation fraction in ``lift_translate`` mode); default weights 0.1, 0.25,
+0.5, 0.25. Termination: success or physics error.
 Truncation: ``gymnasium.make`` wraps the env in a ``TimeLimit`` of :data:`torm.env.PICK_MAX_EPISODE_STEPS`
 (200) steps (the registered spec's ``max_episode_steps``; change it with
 ``gymnasium.make(id, max_episode_steps=N)``); a directly constructed env truncates only when its config's
@@ -118,6 +119,8 @@ class PickEnvConfig:
         success_reward: reward on the success step.
         reward_shaping: add the dense shaping terms.
         w_reach, w_grasp, w_lift, w_translate: shaping weights.
+        reach_scale: the reach term's distance scale (1/m): ``1 - tanh(reach_scale * d)`` (ManiSkill's PickCube
+            uses 5; 10 rewards only the last ~10 cm).
         obs_mode: ManiSkill's observation vocabulary: ``state`` (proprioception only, no cameras), ``rgb``
             (``cameras`` without depth), ``rgbd`` (with depth), ``pointcloud`` (``pointcloud_xyz`` (N, 3) m world
             frame and ``pointcloud_rgb`` (N, 3) uint8 from the cameras' depth instead of images); None = as
@@ -160,6 +163,7 @@ class PickEnvConfig:
     w_grasp: float = 0.25
     w_lift: float = 0.5
     w_translate: float = 0.25
+    reach_scale: float = 10.0
     obs_mode: str | None = None
     control_mode: str = "pd_ee_delta_pose"
     pointcloud_points: int = 1024
@@ -507,7 +511,7 @@ class TormPickEnv(gym.Env):
 
     def _shaping(self, s: dict[str, Any]) -> float:
         cfg = self.config
-        r = cfg.w_reach * (1.0 - np.tanh(10.0 * s["tcp_object_distance_m"]))
+        r = cfg.w_reach * (1.0 - np.tanh(cfg.reach_scale * s["tcp_object_distance_m"]))
         r += cfg.w_grasp * (s["pad_contacts"] == 2)
         if s["held"]:
             r += cfg.w_lift * float(np.clip(s["lift_m"] / cfg.criteria.lift_height, 0.0, 1.0))
