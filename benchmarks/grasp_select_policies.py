@@ -57,8 +57,11 @@ _ENV: gym.Env | None = None
 
 def _worker_init(env_id: str, kwargs: dict[str, Any]) -> None:
     global _ENV
+    import os
+
     import torch
 
+    os.environ["TORM_THREADS"] = "1"  # one core per worker (reconstruct() reads it)
     torch.set_num_threads(1)
     logging.getLogger().setLevel(logging.WARNING)
     _ENV = gym.make(env_id, **kwargs).unwrapped

@@ -7,8 +7,8 @@ Importing :mod:`torm` (or :mod:`torm.env`) registers, with versioned ids:
 - ``torm/TormGraspSelect-v0``: high-level grasp selection (:class:`torm.env.grasp_select_env.TormGraspSelectEnv`):
   choose one of the planner's top-K grasps for a perceived object; reward 1 when the executed pick passes the
   paper's success test. Variants: ``torm/TormGraspSelectMeasured-v0`` (the ``measured`` world, oracle
-  perception) and ``torm/TormGraspSelectHard-v0`` (rw suite, ``measured`` world, TORM perception through the
-  segmentation error model).
+  perception) and ``torm/TormGraspSelectHard-v0`` (packed ``syn_hard`` suite, ``measured`` world, TORM perception
+  through the segmentation error model, K = 16).
 
 ``gymnasium.make("torm/TormPick-v0")`` works after ``import torm``; as in Gymnasium-Robotics,
 ``gymnasium.register_envs(torm)`` keeps linters from flagging that import as unused. Without any import,
@@ -30,12 +30,14 @@ GRASP_SELECT_ID = "torm/TormGraspSelect-v0"
 #: TormGraspSelect in the harness's ``measured`` world (contact, grip force, mass, calibration and execution
 #: errors drawn per layout from sourced ranges), where a grasp choice can fail as the harness's picks do.
 GRASP_SELECT_MEASURED_ID = "torm/TormGraspSelectMeasured-v0"
-#: The realistic, hard grasp-selection variant: the rw suite drawn per reset, the ``measured`` world, and the
-#: TORM pipeline perceiving through the segmentation error model (``noisy``, the paper preset), so the planner
-#: plans on imperfect reconstructions and a choice among its candidates matters.
+#: The realistic, hard grasp-selection variant: the packed ``syn_hard`` suite drawn per reset, the ``measured``
+#: world, the TORM pipeline perceiving through the segmentation error model (``noisy``, the paper preset) and the
+#: planner's top 16, so that the planner plans on imperfect reconstructions of cluttered scenes and the choice
+#: reaches candidates the arm cannot reach or that hit a neighbour.
 GRASP_SELECT_HARD_ID = "torm/TormGraspSelectHard-v0"
 #: Settings of :data:`GRASP_SELECT_HARD_ID` (keyword arguments of its spec).
-GRASP_SELECT_HARD_KWARGS = {"suite": "rw", "realism": "measured", "perception": "torm", "segmenter": "noisy"}
+GRASP_SELECT_HARD_KWARGS = {"suite": "syn_hard", "realism": "measured", "perception": "torm", "segmenter": "noisy",
+                            "top_k": 16}
 
 
 def register_envs() -> None:
