@@ -41,15 +41,15 @@ from _common import RESULTS, context, context_md, md_table, setup, write_json  #
 
 import torm  # noqa: E402  (registers the envs)
 from torm.bench.stats import difference_interval, format_rate, wilson_interval  # noqa: E402
-from torm.config import parse_yaml  # noqa: E402
-from torm.env.grasp_select_env import FEATURE_NAMES  # noqa: E402
-from torm.env.outcome_table import OutcomeTableEnv, record_layout, replay_matches_live  # noqa: E402
+from torm.config import parse_yaml, to_dict  # noqa: E402
+from torm.env.outcome_table import record_layout, replay_matches_live  # noqa: E402
+from torm.env.selection_policies import POLICIES, PPO_HYPERPARAMETERS, choices, successes, train_ppo  # noqa: E402
 
 gym.register_envs(torm)
 log = logging.getLogger("grasp_select_policies")
 
 EVAL_OFFSET = 100_000
-POLICIES = ("random", "planner", "clearance", "ppo", "best_of_k")
+
 RUNS = Path(__file__).resolve().parents[1] / "runs"
 
 _ENV: gym.Env | None = None
@@ -103,72 +103,6 @@ def sweep(env_id: str, kwargs: dict[str, Any], seeds: list[int], path: Path, wor
     return [done[s] for s in seeds]
 
 
-def clearance_choice(obs: dict[str, Any]) -> int:
-    """The valid candidate farthest from the other objects, ties broken by the planner's score."""
-    valid = np.flatnonzero(np.asarray(obs["valid"]))
-    if len(valid) == 0:
-        return 0
-    feats = np.asarray(obs["candidates"], float)[valid]
-    clear = feats[:, FEATURE_NAMES.index("clearance")]
-    score = feats[:, FEATURE_NAMES.index("score")]
-    return int(valid[np.lexsort((-score, -clear))[0]])
-
-
-def choices(policy: str, rows: list[dict[str, Any]], model: Any, rng: np.random.Generator) -> list[int | None]:
-    """The action ``policy`` takes on each row (None for ``best_of_k``, scored as any success)."""
-    out: list[int | None] = []
-    for r in rows:
-        valid = np.flatnonzero(np.asarray(r["obs"]["valid"]))
-        if policy == "random":
-            out.append(int(rng.choice(valid)) if len(valid) else 0)
-        elif policy == "planner":
-            out.append(0)
-        elif policy == "clearance":
-            out.append(clearance_choice(r["obs"]))
-        elif policy == "ppo":
-            obs = {k: np.asarray(v, np.int8 if k == "valid" else np.float32) for k, v in r["obs"].items()}
-            out.append(int(model.predict(obs, deterministic=True)[0]))
-        else:
-            out.append(None)
-    return out
-
-
-def successes(rows: list[dict[str, Any]], actions: list[int | None]) -> int:
-    return int(sum((max(r["rewards"]) if a is None else r["rewards"][a]) > 0 for r, a in zip(rows, actions,
-                                                                                              strict=True)))
-
-
-def train(train_rows, eval_rows, spaces: tuple[Any, Any], timesteps: int, eval_every: int, seed: int,
-          model_path: Path) -> tuple[Any, list[dict[str, Any]], float]:
-    """PPO on the training table; the learning curve on the held-out rows; returns (model, curve, seconds)."""
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    obs_space, act_space = spaces
-    env = OutcomeTableEnv(train_rows, obs_space, act_space)
-    curve: list[dict[str, Any]] = []
-
-    class Curve(BaseCallback):
-        def _on_step(self) -> bool:
-            if self.num_timesteps % eval_every == 0:
-                k = successes(eval_rows, choices("ppo", eval_rows, self.model, None))
-                k_tr = successes(train_rows, choices("ppo", train_rows, self.model, None))
-                curve.append({"steps": int(self.num_timesteps), "heldout_successes": k, "heldout_n": len(eval_rows),
-                              "train_successes": k_tr, "train_n": len(train_rows)})
-                log.info("PPO %d steps: held-out %d/%d, training %d/%d", self.num_timesteps, k, len(eval_rows),
-                         k_tr, len(train_rows))
-            return True
-
-    model = PPO("MultiInputPolicy", env, n_steps=256, batch_size=64, learning_rate=3e-4, ent_coef=0.01,
-                gamma=0.0, seed=seed, verbose=0, device="cpu")
-    t = time.perf_counter()
-    model.learn(total_timesteps=timesteps, callback=Curve())
-    secs = time.perf_counter() - t
-    model_path.parent.mkdir(parents=True, exist_ok=True)
-    model.save(str(model_path))
-    return model, curve, secs
-
-
 def plot(curve: list[dict[str, Any]], summary: dict[str, Any], path: Path, title: str) -> None:
     import matplotlib
 
@@ -220,15 +154,20 @@ def main(argv: list[str] | None = None) -> int:
     run.mkdir(parents=True, exist_ok=True)
     probe = gym.make(args.env_id, **kwargs)
     spaces, spec_kwargs = (probe.observation_space, probe.action_space), dict(probe.spec.kwargs)
-    settings = {k: v for k, v in vars(probe.unwrapped.config).items() if not k.startswith("_")}
+    settings = to_dict(probe.unwrapped.config)
     probe.close()
     train_seeds = list(range(args.train))
     eval_seeds = list(range(EVAL_OFFSET, EVAL_OFFSET + args.eval))
     t0 = time.perf_counter()
-    train_rows = sweep(args.env_id, kwargs, train_seeds, run / "train.jsonl", args.workers)
-    eval_rows = sweep(args.env_id, kwargs, eval_seeds, run / "heldout.jsonl", args.workers)
+    if "sweep" in args.phases:
+        train_rows = sweep(args.env_id, kwargs, train_seeds, run / "train.jsonl", args.workers)
+        eval_rows = sweep(args.env_id, kwargs, eval_seeds, run / "heldout.jsonl", args.workers)
+    else:  # what is recorded so far among the requested seeds
+        train_rows = [r for r in _read_rows(run / "train.jsonl") if r["seed"] in set(train_seeds)]
+        eval_rows = [r for r in _read_rows(run / "heldout.jsonl") if r["seed"] in set(eval_seeds)]
+        log.info("recorded so far: %d training and %d held-out layouts", len(train_rows), len(eval_rows))
     sweep_s = time.perf_counter() - t0
-    if "sweep" in args.phases and args.phases == ["sweep"]:
+    if args.phases == ["sweep"]:
         return 0
     check = []
     if eval_rows:  # the table is what the live env returns: re-run a few recorded episodes live
@@ -243,8 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     model_path = RESULTS / "policies" / f"grasp_select_ppo_{tag}.zip"
     curve_path = run / "curve.json"
     if "train" in args.phases:
-        model, curve, train_s = train(train_rows, eval_rows, spaces, args.timesteps, args.eval_every, args.seed,
-                                      model_path)
+        model, curve, train_s = train_ppo(train_rows, eval_rows, spaces, args.timesteps, args.eval_every,
+                                          args.seed, model_path)
         curve_path.write_text(json.dumps({"curve": curve, "train_s": train_s}))
     else:
         from stable_baselines3 import PPO
@@ -277,8 +216,7 @@ def main(argv: list[str] | None = None) -> int:
            "differences": diffs, "heldout_candidate_outcomes": outcome_counts, "learning_curve": curve,
            "ppo": {"timesteps": args.timesteps, "train_s": train_s,
                    "model": str(model_path.relative_to(RESULTS.parent.parent)),
-                   "hyperparameters": {"policy": "MultiInputPolicy", "n_steps": 256, "batch_size": 64,
-                                       "learning_rate": 3e-4, "ent_coef": 0.01, "gamma": 0.0}},
+                   "hyperparameters": {"policy": "MultiInputPolicy", **PPO_HYPERPARAMETERS}},
            "cost": {"sweep_s_this_session": sweep_s, "mean_layout_s_one_worker": per_layout_s},
            "live_recheck": "passed" if eval_rows else "no rows"}
     out = Path(args.out)
