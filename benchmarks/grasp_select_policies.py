@@ -210,11 +210,17 @@ def main(argv: list[str] | None = None) -> int:
     for r in eval_rows:
         for o in r["outcomes"]:
             outcome_counts[o] = outcome_counts.get(o, 0) + 1
+    K = spaces[1].n
+    by_rank = []  # does the planner's order carry information? success of the candidate at each rank
+    for a in range(K):
+        execd = [r["rewards"][a] for r in train_rows + eval_rows if r["obs"]["valid"][a]]
+        by_rank.append({"rank": a, "executed": len(execd), "successes": int(sum(v > 0 for v in execd))})
     per_layout_s = float(np.mean([r.get("wall_s", np.nan) for r in train_rows + eval_rows]))
     ctx = context({**vars(args), "env_kwargs": kwargs})
     doc = {"context": ctx, "env": args.env_id, "spec_kwargs": spec_kwargs, "env_settings": settings,
            "train_layouts": len(train_rows), "heldout_layouts": len(eval_rows), "summary": summary,
-           "differences": diffs, "heldout_candidate_outcomes": outcome_counts, "learning_curve": curve,
+           "differences": diffs, "heldout_candidate_outcomes": outcome_counts, "success_by_rank": by_rank,
+           "learning_curve": curve,
            "ppo": {"timesteps": args.timesteps, "train_s": train_s,
                    "model": str(model_path.relative_to(RESULTS.parent.parent)),
                    "hyperparameters": {"policy": "MultiInputPolicy", **PPO_HYPERPARAMETERS}},
@@ -224,7 +230,6 @@ def main(argv: list[str] | None = None) -> int:
     write_json(out.with_suffix(".json"), doc)
     title = f"{args.env_id}: {len(train_rows)} training / {len(eval_rows)} held-out layouts"
     plot(curve, summary, out.with_suffix(".png"), title)
-    K = spaces[1].n
     md = [f"# Grasp-selection policies on `{args.env_id}`\n",
           f"Settings: {', '.join(f'{k}={v}' for k, v in spec_kwargs.items())}" + (f"; options {kwargs}" if kwargs
                                                                                  else "") + ".",
@@ -242,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
                    [[k, f"{100 * v['difference']:+.1f}", f"[{100 * v['newcombe95'][0]:+.1f}, "
                                                          f"{100 * v['newcombe95'][1]:+.1f}]"]
                     for k, v in diffs.items()]),
+          "\nSuccess of the candidate at each planner rank (all recorded layouts): "
+          + ", ".join(f"{b['rank']}: {b['successes']}/{b['executed']}" for b in by_rank if b["executed"]) + ".\n",
           "\nOutcomes of all held-out candidates: " + ", ".join(f"{k} {v}" for k, v in sorted(outcome_counts.items()))
           + ".\n",
           f"PPO (Stable-Baselines3, `MultiInputPolicy`, gamma 0: a contextual bandit): {args.timesteps} steps on the "
