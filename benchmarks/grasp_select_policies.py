@@ -139,13 +139,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-every", type=int, default=1024)
     ap.add_argument("--seed", type=int, default=0, help="PPO and random-policy seed")
     ap.add_argument("--live-check", type=int, default=3, help="held-out rows re-run live against the table")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads of this process (PPO, live re-check)")
     ap.add_argument("--phases", nargs="+", default=["sweep", "train", "evaluate"],
                     choices=("sweep", "train", "evaluate"))
     ap.add_argument("--tag", default=None, help="run folder name (default: from the env id)")
     ap.add_argument("--runs-dir", default=str(RUNS))
     ap.add_argument("--out", default=str(RESULTS / "grasp_select_policies"))
     args = ap.parse_args(argv)
-    setup()
+    setup(threads=args.threads)
     kwargs = {}
     for text in args.env_options:
         k, _, v = text.partition("=")
