@@ -1,12 +1,13 @@
 """A short PPO run on an easy ``torm/TormPick-v0`` variant: does the dense reward teach anything in bounded CPU?
 
-Easy variant: rw1 (one glass cylinder), a fixed layout, ``obs_mode="state"`` with ``privileged_state`` (the
+Easy variant: rw1 (one glass cylinder), trained on layout 0, ``obs_mode="state"`` with ``privileged_state`` (the
 object's true pose), ``reward_shaping=True`` (reach + grasp + lift terms, see the env docs; the reach term on
 ManiSkill's PickCube scale, ``reach_scale=5``), episodes of
 ``--episode-steps`` steps. Stable-Baselines3 PPO (``MultiInputPolicy``) on ``--envs`` sync vector envs for
-``--timesteps`` steps; every ``--eval-every`` steps the deterministic policy runs ``--eval-episodes`` episodes
-(mean return, mean final TCP-object distance, successes), beside a uniformly random policy's. "Learning" means the
-PPO policy's return rises above the random policy's; a pick within this budget is not expected.
+``--timesteps`` steps; every ``--eval-every`` steps the deterministic policy runs ``--eval-episodes`` episodes on
+held-out layouts 1000.. (mean return, mean final TCP-object distance, successes), beside a uniformly random
+policy's. "Learning" means the PPO policy's return rises above the random policy's; a pick within this budget is
+not expected.
 
 Writes ``benchmarks/results/pick_env_training.{json,md,png}``.
 
@@ -16,6 +17,7 @@ Usage: ``python benchmarks/pick_env_training.py [--timesteps 30000]``
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -69,7 +71,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-episodes", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(RESULTS / "pick_env_training"))
+    ap.add_argument("--report-only", action="store_true", help="rewrite the md and png from the existing json")
     args = ap.parse_args(argv)
+    if args.report_only:
+        out = Path(args.out)
+        report(json.loads(out.with_suffix(".json").read_text()), out)
+        return 0
     setup(threads=1)
     ctx = context(vars(args))
     from stable_baselines3.common.env_util import make_vec_env
@@ -111,36 +118,45 @@ def main(argv: list[str] | None = None) -> int:
                    "gamma": 0.98, "envs": args.envs}}
     out = Path(args.out)
     write_json(out.with_suffix(".json"), doc)
+    report(doc, out)
+    return 0
+
+
+def report(doc: dict[str, Any], out: Path) -> None:
+    """Write the plot and the Markdown table of a run's JSON ``doc`` next to ``out`` (``--report-only`` redoes it)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    args, curve, random_eval = doc["context"]["args"], doc["curve"], doc["random_policy"]
     fig, ax = plt.subplots(figsize=(6.0, 3.6))
     ax.errorbar([c["steps"] for c in curve], [c["mean_return"] for c in curve],
                 yerr=[c["std_return"] for c in curve], fmt="o-", label="PPO (deterministic)")
     ax.axhline(random_eval["mean_return"], color="r", ls=":", label="random actions")
     ax.set_xlabel("training steps")
-    ax.set_ylabel(f"mean return ({args.episode_steps}-step episodes)")
+    ax.set_ylabel(f"mean return ({doc['episode_steps']}-step episodes)")
     ax.set_title(f"{PICK_ID}, easy variant (rw1, state + privileged, dense reward)", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out.with_suffix(".png"), dpi=120)
     plt.close(fig)
+    n_eval = args["eval_episodes"]
     md = [f"# PPO on an easy `{PICK_ID}` variant\n",
-          f"Variant: {EASY}, {args.episode_steps}-step episodes; Stable-Baselines3 PPO, {args.envs} sync vector envs, "
-          f"{args.timesteps} steps in {train_s:.0f} s on this machine ({args.timesteps / train_s:.0f} steps/s "
-          f"including PPO updates and the evaluations). Evaluation: {args.eval_episodes} episodes per point "
-          "(layout fixed, deterministic policy).\n",
+          f"Variant: {doc['variant']}, {doc['episode_steps']}-step episodes; Stable-Baselines3 PPO, {args['envs']} "
+          f"sync vector envs (SB3 seeds their first reset with 0..{args['envs'] - 1}; every later reset is layout 0), "
+          f"{args['timesteps']} steps in {doc['train_s']:.0f} s on this machine ({doc['steps_per_s_training']:.0f} "
+          "steps/s including PPO updates and the evaluations). Evaluation: the deterministic policy on "
+          f"{n_eval} held-out layouts (seeds 1000..{1000 + n_eval - 1}: the same cylinder elsewhere on the table; "
+          "the privileged observation gives its pose), the same layouts for every point and for random actions.\n",
           md_table(["policy", "steps", "mean return", "final TCP-object distance (m)", "successes"],
                    [["random", "-", f"{random_eval['mean_return']:.2f}", f"{random_eval['final_distance_m']:.3f}",
                      f"{random_eval['successes']}/{random_eval['episodes']}"]]
                    + [["PPO", c["steps"], f"{c['mean_return']:.2f} +- {c['std_return']:.2f}",
                        f"{c['final_distance_m']:.3f}", f"{c['successes']}/{c['episodes']}"] for c in curve]),
-          "\nPlot: `pick_env_training.png`.\n", "## Run context\n", context_md(ctx)]
+          "\nPlot: `pick_env_training.png`.\n", "## Run context\n", context_md(doc["context"])]
     out.with_suffix(".md").write_text("\n".join(md))
     print(out.with_suffix(".md").read_text())
-    return 0
 
 
 if __name__ == "__main__":

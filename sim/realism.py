@@ -324,6 +324,16 @@ def sample_realism(profile: str, seed: int, hollow: Sequence[bool] = (), factors
 
 
 # ------------------------------------------------------------------------------------------------ physics
+
+def sample_scenario_realism(profile: str, scenario: str, seed: int, factors: Sequence[str] = (),
+                            stress: float = 1.0) -> RealismRecord:
+    """:func:`sample_realism` for a scenario by name: its objects' hollowness comes from the object library."""
+    from sim.scenes.objects import get_object
+    from sim.scenes.scenario import get_scenario
+
+    hollow = [get_object(n).hollow for n in get_scenario(scenario).objects]
+    return sample_realism(profile, seed, hollow, factors, stress=stress)
+
 def apply_physics(record: RealismRecord, model: mujoco.MjModel, object_body_ids: Sequence[int],
                   object_geom_ids: Sequence[int], pad_geom_ids: Sequence[int], table_geom_id: int | None) -> None:
     """Write the record's contact and mass values into a compiled model (before the world settles).
@@ -474,4 +484,4 @@ class ExecutionErrors:
 
 __all__ = ["ARM_REACH_M", "CAMERA_LEVER_M", "FACTORS", "MEASURED", "NOMINAL_WIDTH_PX", "PROFILES", "SOURCES",
            "ExecutionErrors", "MeasuredRanges", "Range", "RealismRecord", "apply_physics", "perturb_capture",
-           "sample_realism"]
+           "sample_realism", "sample_scenario_realism"]

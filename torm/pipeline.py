@@ -326,13 +326,10 @@ def make_backend(config: TrialConfig) -> Any:
 
 def sample_trial_realism(config: TrialConfig) -> Any:
     """The trial's :class:`sim.realism.RealismRecord`, drawn from ``config.world`` and the trial seed."""
-    from sim.realism import sample_realism
-    from sim.scenes.objects import get_object
-    from sim.scenes.scenario import get_scenario
+    from sim.realism import sample_scenario_realism
 
-    hollow = [get_object(n).hollow for n in get_scenario(config.scenario).objects]
-    return sample_realism(config.world.realism, config.seed, hollow, config.world.factors,
-                          stress=config.world.stress)
+    return sample_scenario_realism(config.world.realism, config.scenario, config.seed, config.world.factors,
+                                   stress=config.world.stress)
 
 
 def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = None) -> dict[str, Any]:

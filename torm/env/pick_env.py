@@ -306,12 +306,9 @@ class TormPickEnv(gym.Env):
             self._backend.close()
         realism = None
         if cfg.realism != "ideal":  # drawn per layout from the sourced ranges, as a harness trial draws them
-            from sim.realism import sample_realism
-            from sim.scenes.objects import get_object
-            from sim.scenes.scenario import get_scenario
+            from sim.realism import sample_scenario_realism
 
-            hollow = [get_object(n).hollow for n in get_scenario(cfg.scenario).objects]
-            realism = sample_realism(cfg.realism, int(layout_seed), hollow, stress=cfg.stress)
+            realism = sample_scenario_realism(cfg.realism, cfg.scenario, int(layout_seed), stress=cfg.stress)
         world = build_world(cfg.scenario, int(layout_seed), robot=cfg.robot, realism=realism)
         if cfg.target_object > len(world.objects):
             raise ConfigError(f"target_object {cfg.target_object} but scenario {cfg.scenario!r} has objects "
