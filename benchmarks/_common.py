@@ -56,6 +56,21 @@ def setup(threads: int = THREADS, verbose: bool = True) -> int:
     return configure_threads(threads)
 
 
+def cpu_busy_s() -> float:
+    """CPU seconds all processes have been busy since boot (``/proc/stat``; 0 where it does not exist)."""
+    try:
+        fields = [float(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
+    except OSError:
+        return 0.0
+    return (sum(fields) - fields[3] - (fields[4] if len(fields) > 4 else 0.0)) / os.sysconf("SC_CLK_TCK")
+
+
+def own_cpu_s(children: bool = False) -> float:
+    """CPU seconds of this process (and of its waited-for children with ``children``)."""
+    t = os.times()
+    return t.user + t.system + ((t.children_user + t.children_system) if children else 0.0)
+
+
 def cpu_info() -> dict[str, Any]:
     """CPU model and the vector extensions that change torch's speed here (from /proc/cpuinfo; empty elsewhere).
 

@@ -15,7 +15,6 @@ Usage: ``python benchmarks/env_throughput.py [--pick-steps 300] [--select-layout
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
-from _common import RESULTS, context, context_md, md_table, setup, write_json  # noqa: E402
+from _common import RESULTS, context, context_md, cpu_busy_s, md_table, own_cpu_s, setup, write_json  # noqa: E402
 
 import torm  # noqa: E402  (registers the envs)
 from torm.env import GRASP_SELECT_HARD_ID, GRASP_SELECT_ID, GRASP_SELECT_MEASURED_ID, PICK_ID  # noqa: E402
@@ -33,29 +32,16 @@ from torm.env import GRASP_SELECT_HARD_ID, GRASP_SELECT_ID, GRASP_SELECT_MEASURE
 gym.register_envs(torm)
 
 
-def _busy_s() -> float:
-    """Machine-wide busy CPU seconds (all cores) from /proc/stat."""
-    with open("/proc/stat") as f:
-        parts = [float(x) for x in f.readline().split()[1:]]
-    idle = parts[3] + (parts[4] if len(parts) > 4 else 0.0)
-    return (sum(parts) - idle) / os.sysconf("SC_CLK_TCK")
-
-
-def _own_s() -> float:
-    t = os.times()
-    return t.user + t.system + t.children_user + t.children_system
-
-
 class Timer:
     """Wall seconds of a block and the cores other processes kept busy meanwhile."""
 
     def __enter__(self) -> Timer:
-        self.busy0, self.own0, self.t0 = _busy_s(), _own_s(), time.perf_counter()
+        self.busy0, self.own0, self.t0 = cpu_busy_s(), own_cpu_s(children=True), time.perf_counter()
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.wall = time.perf_counter() - self.t0
-        other = (_busy_s() - self.busy0) - (_own_s() - self.own0)
+        other = (cpu_busy_s() - self.busy0) - (own_cpu_s(children=True) - self.own0)
         self.other_cores = round(max(0.0, other) / max(self.wall, 1e-9), 2)
 
 

@@ -31,23 +31,19 @@ from pathlib import Path
 import cv2
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks._common import RESULTS, THREADS, context, context_md, md_table, setup, write_json  # noqa: E402
+from benchmarks._common import (  # noqa: E402
+    RESULTS,
+    THREADS,
+    context,
+    context_md,
+    cpu_busy_s,
+    md_table,
+    own_cpu_s,
+    setup,
+    write_json,
+)
 
 RENDER = Path(__file__).resolve().parents[1] / "tests" / "data" / "learned_seg_view.png"
-
-
-def _cpu_busy_s() -> float:
-    """CPU seconds all processes have been busy since boot (``/proc/stat``; 0 where it does not exist)."""
-    try:
-        fields = [float(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
-    except OSError:
-        return 0.0
-    return (sum(fields) - fields[3] - (fields[4] if len(fields) > 4 else 0.0)) / os.sysconf("SC_CLK_TCK")
-
-
-def _own_cpu_s() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -108,7 +104,7 @@ def main(argv: list[str] | None = None) -> dict:
         seg = GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=str(enc.path), sam_decoder=str(dec.path),
                                                      max_detections=5, threads=threads, **cfg))
         per: dict[str, list[float]] = {"boxes": [], "sam_encoder": [], "sam_decoder_per_box": [], "view": []}
-        busy0, own0, wall0 = _cpu_busy_s(), _own_cpu_s(), time.perf_counter()
+        busy0, own0, wall0 = cpu_busy_s(), own_cpu_s(), time.perf_counter()
         for _ in range(args.views):
             timings: dict[str, float] = {}
             t = time.perf_counter()
@@ -120,7 +116,7 @@ def main(argv: list[str] | None = None) -> dict:
         out["boxes_per_view"] = len(dets)
         wall = time.perf_counter() - wall0
         # cores other processes kept busy while the views were timed (the load average lags by minutes)
-        out["other_processes_cores"] = round(max(0.0, (_cpu_busy_s() - busy0) - (_own_cpu_s() - own0)) / wall, 2)
+        out["other_processes_cores"] = round(max(0.0, (cpu_busy_s() - busy0) - (own_cpu_s() - own0)) / wall, 2)
     med = {k: round(statistics.median(v), 3) for k, v in per.items()}
     out["seconds_per_view_median"] = med
     out["capture_50_views_min"] = round(50 * med["view"] / 60, 1)
