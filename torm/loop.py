@@ -245,6 +245,14 @@ def plan_with_planner(config: TrialConfig, per: Perception, table_z: float, grip
     return validate_grasps(config.planner, out, per.point_clouds, float(gripper.max_opening))
 
 
+def fixture_positions(obstacles: np.ndarray | None) -> list[np.ndarray]:
+    """Horizontal positions (m, world xy, rounded to 1 cm, unique) of the declared fixtures' obstacle points
+    ``obstacles`` (N, 3); the places a released object must keep away from. Empty without fixtures."""
+    if obstacles is None:
+        return []
+    return list(np.unique(np.round(np.asarray(obstacles)[:, :2], 2), axis=0))
+
+
 class _Labels:
     """Trial-unique labels for reconstructed objects (``1000, 1001, ...`` across re-perceptions)."""
 
@@ -285,7 +293,7 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     gripper = _gripper(backend)
     cal = _calibration(backend)
     obstacles = cal.obstacle_points() if cal is not None else None
-    fixture_xy = [] if obstacles is None else list(np.unique(np.round(np.asarray(obstacles)[:, :2], 2), axis=0))
+    fixture_xy = fixture_positions(obstacles)
 
     def sense() -> tuple[Perception, dict[int, tuple[ObjectPointCloud, list]], float]:
         per = perceive(config, backend, rng, timings, rgb=rgb, oracle_meshes=oracle_meshes)
@@ -377,5 +385,5 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     return attempts
 
 
-__all__ = ["DEPTH_CHANNELS", "IMAGE_SEGMENTERS", "MASK_CHANNELS", "TABLE_SOURCES", "perceive", "run_loop",
-           "table_height"]
+__all__ = ["DEPTH_CHANNELS", "IMAGE_SEGMENTERS", "MASK_CHANNELS", "TABLE_SOURCES", "fixture_positions", "perceive",
+           "run_loop", "table_height"]

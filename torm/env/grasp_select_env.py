@@ -394,6 +394,7 @@ class TormGraspSelectEnv(gym.Env):
     def step(self, action):
         from sim.judge import PickJudge
         from torm.execution.pick import execute_pick, free_directions
+        from torm.loop import fixture_positions
 
         if self._backend is None or self._done:
             raise ConfigError("call reset() before step(); TormGraspSelect episodes are one step long")
@@ -405,8 +406,7 @@ class TormGraspSelectEnv(gym.Env):
             return self._observation(), 0.0, True, False, info
         xy = self._centroid[:2]
         others_xy = [c.points_nx3[:, :2].mean(axis=0) for k, (c, _) in self._clouds.items() if k != self._target]
-        if self._obstacles is not None:
-            others_xy += list(np.unique(np.round(np.asarray(self._obstacles)[:, :2], 2), axis=0))
+        others_xy += fixture_positions(self._obstacles)
         place_area = np.asarray(self._trial.place_area, dtype=float)
         pick = dataclasses.replace(self._pick, table_height=self._table_z)
         dirs = free_directions(xy, others_xy, place_area, pick.translate_distance)
