@@ -175,3 +175,22 @@ def test_recon_degraded_quick_scores_exact_and_degraded_cases_against_the_truth(
         assert row["best_tuned"] in m
     md = (tmp_path / "out" / "recon_degraded.md").read_text()
     assert "defaults >= the 128^3 voxel hull in" in md and "glass10/real10" in md
+
+
+def test_perception_speed_scores_each_render_and_reads_auto_width(tmp_path: Path) -> None:
+    env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "perception_speed.py"), "--suites", "rw", "--limit", "1",
+           "--views", "2", "--renders", "4x1.0,4x0.5", "--rows", "learned_seg_v4@auto,learned_seg_v4@640:notta",
+           "--workers", "1", "--cache", str(tmp_path / "cache"), "--results", str(tmp_path / "out")]
+    res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    doc = json.loads((tmp_path / "out" / "perception_speed.json").read_text())
+    rows = doc["results"]
+    assert len(rows) == 4 and {r["render"] for r in rows} == {"4x1.0", "4x0.5"}
+    # @auto reads the traced width: 640 px at render scale 1, 320 px at 0.5
+    assert {r["segmenter"].split(" @")[1] for r in rows if r["render"] == "4x0.5"} == {"320", "640"}
+    assert {r["segmenter"].split(" @")[1] for r in rows if r["render"] == "4x1.0"} == {"640"}
+    for r in rows:
+        assert 0.0 <= r["glass_iou"] <= 1.0 and r["render_s_per_view"] > 0 and r["seg_s_per_view"] > 0
+        assert r["glass_iou"] > 0.3, r  # rw1's glass is found at either resolution
+    assert "capture s / 50 views" in (tmp_path / "out" / "perception_speed.md").read_text()

@@ -42,3 +42,14 @@ def test_learned_segmenter_context_names_the_model_file_and_its_hash(tmp_path):
     cfg = config.from_dict(TrialConfig, {"method": "torm", "segmentation": {"segmenter": "learned",
                                                                            "options": {"model": "/nope.onnx"}}})
     assert trial_context(cfg)["segmenter_model"] == "nope.onnx@missing"
+
+
+def test_context_names_the_input_width_and_the_traced_scale():
+    ctx = trial_context(config.from_dict(TrialConfig, {"method": "torm"}, overrides=[
+        "segmentation.segmenter=learned", "segmentation.options.input_width=448", "capture.renderer=pbr",
+        "capture.pbr.render_scale=0"]))
+    assert ctx["segmenter_input_px"] == 448 and ctx["render_scale"] == pytest.approx(0.7)
+    ctx = trial_context(config.from_dict(TrialConfig, {"method": "torm"}, overrides=[
+        "segmentation.segmenter=learned", "capture.renderer=pbr"]))
+    assert ctx["segmenter_input_px"] == 640 and ctx["render_scale"] == 1.0
+    assert "render_scale" not in trial_context(config.from_dict(TrialConfig, {"method": "torm"}))  # mujoco

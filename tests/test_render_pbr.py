@@ -161,3 +161,39 @@ def test_capture_command_renders_pbr_rgb(tmp_path, capsys, monkeypatch):
     cap = load_capture(out)
     assert cap.metadata["renderer"].startswith("pbr mitsuba") and "spp 4" in cap.metadata["renderer"]
     assert cap.views[0].rgb.shape == (36, 64, 3) and cap.masks().max() == 1
+
+
+def test_auto_render_scale_traces_the_width_the_segmenter_reads(tmp_path, monkeypatch):
+    from torm import config
+    from torm.errors import ConfigError
+    from torm.pipeline import TrialConfig, make_backend, resolve_render_scale
+
+    def cfg(*extra: str) -> TrialConfig:
+        return config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=list(extra))
+
+    assert resolve_render_scale(cfg("capture.pbr.render_scale=0.7")) == 0.7  # explicit values are kept
+    auto = "capture.pbr.render_scale=0"
+    assert resolve_render_scale(cfg(auto)) == 1.0  # GT masks read no pixels: native
+    learned = (auto, "segmentation.segmenter=learned")
+    assert resolve_render_scale(cfg(*learned)) == 1.0  # 640 px input on the 640 px capture
+    assert resolve_render_scale(cfg(*learned, "segmentation.options.input_width=448")) == pytest.approx(0.7)
+    assert resolve_render_scale(cfg(*learned, "segmentation.options.input_width=320")) == pytest.approx(0.5)
+    assert resolve_render_scale(cfg(*learned, "segmentation.options.input_width=320", "capture.scale=1")) == \
+        pytest.approx(0.25)
+    assert resolve_render_scale(cfg(*learned, "segmentation.options.input_width=2000")) == 1.0  # never upsampled
+    assert resolve_render_scale(cfg(*learned, "segmentation.options.input_width=0")) == 1.0  # 0 = capture width
+    assert resolve_render_scale(cfg(*learned, "method=oracle")) == 1.0
+    with pytest.raises(ConfigError, match="auto"):
+        cfg("capture.pbr.render_scale=0.01")
+    # the backend traces at the resolved scale and says so in the capture's renderer description
+    monkeypatch.setenv("TORM_CACHE_DIR", str(tmp_path))
+    c = cfg(*learned, "segmentation.options.input_width=32", "capture.renderer=pbr", "capture.n_views=1",
+            "capture.scale=0.05", "capture.pbr.spp=4", "capture.pbr.denoise=none")
+    backend = make_backend(c)
+    try:
+        cap = backend.capture(1)
+        assert "render_scale 0.5" in cap.metadata["renderer"] and cap.views[0].rgb.shape == (36, 64, 3)
+    finally:
+        backend.close()
+    # outside a trial (no segmenter to match) auto is native
+    assert MitsubaRenderer(tiny_world(), PbrSettings(render_scale=0)).settings.render_scale == 1.0

@@ -256,7 +256,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn; ``stress[...] xK``),
     ``backend``, ``table`` (where the loop's table height came from: ``declared`` or ``capture``);
     with the ``learned`` segmenter also ``segmenter_model`` (:func:`torm.segmentation.learned.model_fingerprint`:
-    file name and content hash).
+    file name and content hash) and ``segmenter_input_px`` (the width the network reads; 0 = the capture's); with
+    the ``pbr`` renderer ``render_scale`` (the traced fraction of the capture size, :func:`resolve_render_scale`).
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
@@ -292,10 +293,32 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         ctx.update(planner=config.planner, planner_version=str(pl.version),
                    planner_options_sha=planner_hash(dict(config.planner_options)))
     if torm_method and seg.segmenter == "learned":
-        from torm.segmentation.learned import model_fingerprint
+        from torm.segmentation.learned import LearnedConfig, model_fingerprint
 
         ctx["segmenter_model"] = model_fingerprint(str(seg.options.get("model", "") or ""))
+        ctx["segmenter_input_px"] = int(seg.options.get("input_width", LearnedConfig.input_width) or 0)
+    if config.capture.renderer == "pbr":
+        ctx["render_scale"] = resolve_render_scale(config)
     return ctx
+
+
+def resolve_render_scale(config: TrialConfig) -> float:
+    """The PBR trace scale of a trial: ``capture.pbr.render_scale``, or for ``0`` (auto) the width the image
+    segmenter reads: the ``learned`` segmenter's ``input_width`` (its default when unset) over the capture width
+    (``1280 x capture.scale`` px), at most 1; 1.0 for every other segmenter and method (they read the native
+    image, or no image). Unitless."""
+    rs = float(config.capture.pbr.render_scale)
+    if rs != 0:
+        return rs
+    seg = config.segmentation
+    if config.method != "torm" or seg.segmenter != "learned":
+        return 1.0
+    from sim.camera_rig import CameraRigConfig
+    from torm.segmentation.learned import LearnedConfig
+
+    width = int(seg.options.get("input_width", LearnedConfig.input_width) or 0)
+    capture_w = CameraRigConfig(scale=config.capture.scale).image_width
+    return 1.0 if width <= 0 else min(1.0, max(0.05, width / capture_w))
 
 
 def make_backend(config: TrialConfig) -> Any:
@@ -311,8 +334,9 @@ def make_backend(config: TrialConfig) -> Any:
         world = build_world(config.scenario, config.seed, robot=config.robot, realism=realism)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
         depth = make_depth_model(config.capture.depth_model, config.capture.depth_options)
+        pbr = replace(config.capture.pbr, render_scale=resolve_render_scale(config))
         backend = SimBackend(world, camera_config=cam, realism=realism, renderer=config.capture.renderer,
-                             render_settings=config.capture.pbr, depth_model=depth, depth_seed=config.seed)
+                             render_settings=pbr, depth_model=depth, depth_seed=config.seed)
         backend.reference = bool(config.capture.reference)
         return backend
     if config.capture.reference:

@@ -28,6 +28,7 @@ import logging
 import time
 import zlib
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -177,6 +178,8 @@ class MitsubaRenderer:
                  centre: tuple[float, float, float] = (0.55, 0.0, 0.0), appearance_seed: int | None = None) -> None:
         self.world = world
         self.settings = settings or PbrSettings()
+        if self.settings.render_scale == 0:  # auto without a segmenter to match (trials resolve it before): native
+            self.settings = replace(self.settings, render_scale=1.0)
         self.cache = cache if cache is not None else RenderCache()
         self.centre = centre
         self.appearance_seed = appearance_seed

@@ -44,7 +44,10 @@ class PbrSettings:
         denoise_strength: filter strength in 8-bit grey levels (``h`` of non-local means, sigma colour of the
             bilateral filter).
         render_scale: the RGB pass is traced at this fraction of each camera's size and resized (area / linear
-            interpolation) to it; 1.0 = native. Instance ids are always traced at the native size.
+            interpolation) to it; 1.0 = native. Instance ids are always traced at the native size. 0 = auto: the
+            width the image segmenter reads (a trial resolves it, :func:`torm.pipeline.resolve_render_scale`:
+            the learned segmenter's ``input_width`` / the capture width, at most 1; 1.0 for every other segmenter
+            and outside a trial), so no more pixels are traced than the method reads.
         variant: one of :data:`VARIANTS`.
         threads: render threads (0 = ``TORM_THREADS`` or the free cores).
         exposure: ``0`` = auto exposure (the scene's log-average luminance maps to 0.18, Reinhard et al. 2002's
@@ -84,8 +87,9 @@ class PbrSettings:
             raise UnknownNameError("capture.pbr.denoise", self.denoise, DENOISERS)
         if not self.denoise_strength >= 0:
             raise ConfigError(f"capture.pbr.denoise_strength must be >= 0 grey levels, got {self.denoise_strength}")
-        if not 0.05 <= self.render_scale <= 4.0:
-            raise ConfigError(f"capture.pbr.render_scale must be in [0.05, 4], got {self.render_scale}")
+        if not (self.render_scale == 0 or 0.05 <= self.render_scale <= 4.0):
+            raise ConfigError(f"capture.pbr.render_scale must be in [0.05, 4] or 0 (auto: the width the segmenter "
+                              f"reads), got {self.render_scale}")
         if self.variant not in VARIANTS:
             raise UnknownNameError("capture.pbr.variant", self.variant, VARIANTS)
         if self.threads < 0:
