@@ -7,8 +7,9 @@ silhouettes, on one thread per process, so that a faster default is chosen on ev
 - ``--renders``: PBR settings as ``SPPxRENDER_SCALE`` (``16x1.0`` = the default 16 spp traced at the camera's
   640x360; ``16x0.5`` = traced at 320x180 and resized to 640x360). For every scenario of ``--suites`` (scenario k
   gets layout seed k, so table textures and lights vary) a capture of ``--views`` rig views is rendered once per
-  setting (one thread per worker process, ``--workers`` processes), cached under ``--cache`` with the seconds per
-  view it took.
+  setting (one thread per worker process, ``--workers`` processes) and cached under ``--cache`` for the scores.
+  The render timing is measured apart: each setting renders ``--time-views`` views of the first scenario in a
+  fresh process of its own, one setting at a time, nothing cached.
 - ``--rows``: learned segmenters as ``MODEL@INPUT_WIDTH`` with an optional ``:notta`` (mirror test-time
   augmentation off) or ``:tta`` (on); ``MODEL`` is a shipped name (``learned_seg`` = v3, ``learned_seg_v4``) or an
   ``.onnx`` path; ``@auto`` reads each capture at the width it was traced at (``render_scale x 640``: render only
@@ -31,6 +32,7 @@ import json
 import logging
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -122,9 +124,12 @@ def main(argv: list[str] | None = None) -> int:
                                       "learned_seg_v4@640")
     ap.add_argument("--cache", default=str(ROOT / "runs" / "perception_speed_captures"))
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--time-views", type=int, default=8, help="views rendered per setting for the timing")
     ap.add_argument("--limit", type=int, default=0, help="only the first N scenarios (0 = all)")
     ap.add_argument("--results", default=str(RESULTS), help="folder of the result files")
     ap.add_argument("--out", default="perception_speed", help="result file stem")
+    ap.add_argument("--append", action="store_true",
+                    help="add these render settings to the existing result file (replacing the same settings)")
     args = ap.parse_args(argv)
     setup(threads=1)
     import multiprocessing as mp
@@ -145,8 +150,19 @@ def main(argv: list[str] | None = None) -> int:
             for spp, rs in renders for _, name, seed in scs]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max(1, args.workers), mp_context=mp.get_context("spawn")) as ex:
-        caps = list(ex.map(_capture_job, jobs))
+        caps = list(ex.map(_capture_job, jobs))  # cached captures for the scores (their timings are not used)
     log.info("captures ready in %.0f s", time.perf_counter() - t0)
+    # timing: each render setting once more in a fresh process of its own (a trial's first view pays the imports
+    # and kernel compilation too), one at a time, on the first scenario, nothing cached
+    timing: dict[tuple[int, float], dict[str, Any]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for spp, rs in renders:
+            _, name, seed = scs[0]
+            with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as ex:
+                timing[(spp, rs)] = ex.submit(_capture_job, (name, seed, args.time_views, spp, rs,
+                                                             str(Path(tmp) / f"{spp}x{rs}"))).result()
+            log.info("%sx%s: %.3f s per view after a first view of %.2f s", spp, rs,
+                     timing[(spp, rs)]["render_s_per_view"], timing[(spp, rs)]["first_view_s"])
     segs: dict[tuple[int, str, bool | None], tuple[str, Any]] = {}
 
     def segmenter(model: str, width: int, tta: bool | None) -> tuple[str, Any]:
@@ -161,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         return segs[(width, model, tta)]
 
     results: list[dict[str, Any]] = []
-    for job, cap_info in zip(jobs, caps, strict=True):
+    for job in jobs:
         name, seed, _, spp, rs, folder = job
         suite = next(s for s, n, k in scs if n == name and k == seed)
         cap = load_capture(folder)
@@ -179,8 +195,8 @@ def main(argv: list[str] | None = None) -> int:
             results.append({"render": f"{spp}x{rs}", "spp": spp, "render_scale": rs, "segmenter": label,
                             "suite": suite, "scenario": name, "seed": seed,
                             "table": table_texture(seed, (1.7, 1.8)).pattern,
-                            "render_s_per_view": cap_info["render_s_per_view"],
-                            "first_view_s": cap_info["first_view_s"],
+                            "render_s_per_view": timing[(spp, rs)]["render_s_per_view"],
+                            "first_view_s": timing[(spp, rs)]["first_view_s"],
                             "seg_s_per_view": sec,
                             "glass_iou": float(np.mean([s["iou"] for s in g])),
                             "glass_precision": float(np.mean([s["precision"] for s in g])),
@@ -188,10 +204,19 @@ def main(argv: list[str] | None = None) -> int:
                             "all_iou": float(np.mean([s["iou"] for s in a]))})
         log.info("%s %sx%s: %s", name, spp, rs, ", ".join(f"{r['segmenter']}: {r['glass_iou']:.2f}"
                                                           for r in results[-len(row_segs):]))
-    doc = {"context": ctx, "scenarios": len(scs), "trial_views": TRIAL_VIEWS, "results": results,
+    doc = {"context": ctx, "scenarios": len(scs), "trial_views": TRIAL_VIEWS, "timing_scenario": scs[0][1],
+           "results": results,
            "described": sorted({c["described"] for c in caps})}
     out = Path(args.results)
     out.mkdir(parents=True, exist_ok=True)
+    if args.append and (out / f"{args.out}.json").is_file():  # keep the earlier run's other render settings
+        old = json.loads((out / f"{args.out}.json").read_text())
+        if (old["scenarios"], old["timing_scenario"]) != (doc["scenarios"], doc["timing_scenario"]):
+            raise SystemExit(f"--append: {args.out}.json scored other scenarios; use the same --suites / --limit")
+        mine = {r["render"] for r in results}
+        doc["results"] = [r for r in old["results"] if r["render"] not in mine] + results
+        doc["described"] = sorted({*old["described"], *doc["described"]})
+        doc["earlier_runs"] = [*old.get("earlier_runs", []), old["context"]]
     write_json(out / f"{args.out}.json", doc)
     (out / f"{args.out}.md").write_text(report(doc, args))
     return 0
@@ -219,10 +244,14 @@ def report(doc: dict[str, Any], args: argparse.Namespace) -> str:
             "recall", "all-objects IoU"]
     L = ["# Perception speed against silhouette quality (PBR capture + learned segmenter, one thread)", "",
          context_md(doc["context"]), "",
+         *(f"Rows of an earlier run of this script kept beside them (`--append`): {c['date_utc']}, git "
+           f"{c['versions'].get('git', '?')}, contended: {c['contended']}, arguments {c['args']}."
+           for c in doc.get("earlier_runs", [])), "",
          f"{doc['scenarios']} scenarios ({', '.join(suites)}; scenario k has layout seed k), {args.views} rig views "
          "each at 640x360. Render settings: " + "; ".join(f"`{d}`" for d in doc["described"]) + ". Render seconds "
-         "per view are the median after the first view on one thread (each worker process renders alone on its "
-         "core); the capture column adds the first view (scene load and kernel compilation) to "
+         f"per view: the median after the first view of {args.time_views} views of `{doc['timing_scenario']}` "
+         "rendered in a fresh process per setting, one thread, one setting at a time; the capture column adds "
+         "the first view (scene load and kernel compilation) to "
          f"{TRIAL_VIEWS - 1} more; segmentation seconds per view on one onnxruntime thread, maps and instance "
          "grouping included. Scores per view, averaged: union IoU "
          "against the glass objects' masks (opaque objects are background), precision and recall of that union, "
