@@ -108,13 +108,6 @@ def _capture_job(args: tuple[str, int, int, int, float, str]) -> dict[str, Any]:
     return out
 
 
-def score(pred_hxw: np.ndarray, true_hxw: np.ndarray) -> dict[str, float]:
-    """Union-mask IoU, precision and recall of two (H, W) bool masks (empty denominators count as 1)."""
-    tp, fp, fn = (float(np.sum(pred_hxw & true_hxw)), float(np.sum(pred_hxw & ~true_hxw)),
-                  float(np.sum(~pred_hxw & true_hxw)))
-    return {"iou": tp / max(tp + fp + fn, 1.0), "precision": tp / max(tp + fp, 1.0), "recall": tp / max(tp + fn, 1.0)}
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--suites", default="rw,lab,syn_hard")
@@ -135,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    from benchmarks.segmentation_reference import scenarios
+    from benchmarks.segmentation_reference import scenarios, segment_and_score
     from sim.render.textures import table_texture
     from torm.capture.io import load_capture
     from torm.segmentation import make_segmenter
@@ -181,27 +174,16 @@ def main(argv: list[str] | None = None) -> int:
         name, seed, _, spp, rs, folder = job
         suite = next(s for s, n, k in scs if n == name and k == seed)
         cap = load_capture(folder)
-        glass_ids = cap.metadata.get("transparent_ids", list(cap.object_ids))
-        true_all = cap.masks() > 0
-        true_glass = np.isin(cap.masks(), glass_ids)
         traced_w = int(round(cap.views[0].rgb.shape[1] * rs))
         row_segs = [segmenter(model, width or traced_w, tta) for model, width, tta in rows]
         for label, seg in row_segs:
-            t = time.perf_counter()
-            pred = seg.segment(cap).masks_vxhxw > 0
-            sec = (time.perf_counter() - t) / len(cap)
-            g = [score(p, m) for p, m in zip(pred, true_glass, strict=True)]
-            a = [score(p, m) for p, m in zip(pred, true_all, strict=True)]
+            m = segment_and_score(seg, cap)
             results.append({"render": f"{spp}x{rs}", "spp": spp, "render_scale": rs, "segmenter": label,
                             "suite": suite, "scenario": name, "seed": seed,
                             "table": table_texture(seed, (1.7, 1.8)).pattern,
                             "render_s_per_view": timing[(spp, rs)]["render_s_per_view"],
                             "first_view_s": timing[(spp, rs)]["first_view_s"],
-                            "seg_s_per_view": sec,
-                            "glass_iou": float(np.mean([s["iou"] for s in g])),
-                            "glass_precision": float(np.mean([s["precision"] for s in g])),
-                            "glass_recall": float(np.mean([s["recall"] for s in g])),
-                            "all_iou": float(np.mean([s["iou"] for s in a]))})
+                            "seg_s_per_view": m.pop("seconds_per_view"), **m})
         log.info("%s %sx%s: %s", name, spp, rs, ", ".join(f"{r['segmenter']}: {r['glass_iou']:.2f}"
                                                           for r in results[-len(row_segs):]))
     doc = {"context": ctx, "scenarios": len(scs), "trial_views": TRIAL_VIEWS, "timing_scenario": scs[0][1],

@@ -93,6 +93,24 @@ def score(pred_hxw: np.ndarray, true_hxw: np.ndarray) -> dict[str, float]:
     return {"iou": tp / max(tp + fp + fn, 1.0), "precision": tp / max(tp + fp, 1.0), "recall": tp / max(tp + fn, 1.0)}
 
 
+def segment_and_score(seg: Any, cap: Any) -> dict[str, float]:
+    """Segment a capture with ``seg`` and score each view's union mask (:func:`score`) against the glass objects'
+    masks (``metadata["transparent_ids"]``, else every object) and against every object's; means over the views,
+    plus the segmentation seconds per view."""
+    masks = cap.masks()
+    true_all = masks > 0
+    true_glass = np.isin(masks, cap.metadata.get("transparent_ids", list(cap.object_ids)))
+    t = time.perf_counter()
+    pred = seg.segment(cap).masks_vxhxw > 0
+    sec = (time.perf_counter() - t) / len(cap)
+    g = [score(p, m) for p, m in zip(pred, true_glass, strict=True)]
+    a = [score(p, m) for p, m in zip(pred, true_all, strict=True)]
+    return {"glass_iou": float(np.mean([s["iou"] for s in g])),
+            "glass_precision": float(np.mean([s["precision"] for s in g])),
+            "glass_recall": float(np.mean([s["recall"] for s in g])),
+            "all_iou": float(np.mean([s["iou"] for s in a])), "seconds_per_view": sec}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--suites", default="rw,lab,syn_hard")
@@ -127,21 +145,10 @@ def main(argv: list[str] | None = None) -> int:
     results: list[dict[str, Any]] = []
     for (suite, name, seed), folder in zip(scs, folders, strict=True):
         cap = load_capture(folder)
-        glass_ids = cap.metadata.get("transparent_ids", list(cap.object_ids))
         pattern = table_texture(seed, (1.7, 1.8)).pattern
-        true_all = cap.masks() > 0
-        true_glass = np.isin(cap.masks(), glass_ids)
         for label, seg in rows:
-            t = time.perf_counter()
-            pred = seg.segment(cap).masks_vxhxw > 0
-            sec = (time.perf_counter() - t) / len(cap)
-            g = [score(p, m) for p, m in zip(pred, true_glass, strict=True)]
-            a = [score(p, m) for p, m in zip(pred, true_all, strict=True)]
             results.append({"row": label, "suite": suite, "scenario": name, "seed": seed, "table": pattern,
-                            "glass_iou": float(np.mean([s["iou"] for s in g])),
-                            "glass_precision": float(np.mean([s["precision"] for s in g])),
-                            "glass_recall": float(np.mean([s["recall"] for s in g])),
-                            "all_iou": float(np.mean([s["iou"] for s in a])), "seconds_per_view": sec})
+                            **segment_and_score(seg, cap)})
         log.info("%s (%s, %s): %s", name, suite, pattern,
                  ", ".join(f"{r['row']}: {r['glass_iou']:.2f}" for r in results[-len(rows):]))
     doc = {"context": context(vars(args)), "render_s": t_render, "scenarios": len(scs), "results": results}
