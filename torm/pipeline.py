@@ -293,13 +293,21 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         ctx.update(planner=config.planner, planner_version=str(pl.version),
                    planner_options_sha=planner_hash(dict(config.planner_options)))
     if torm_method and seg.segmenter == "learned":
-        from torm.segmentation.learned import LearnedConfig, model_fingerprint
+        from torm.segmentation.learned import model_fingerprint
 
         ctx["segmenter_model"] = model_fingerprint(str(seg.options.get("model", "") or ""))
-        ctx["segmenter_input_px"] = int(seg.options.get("input_width", LearnedConfig.input_width) or 0)
+        ctx["segmenter_input_px"] = learned_input_width(config)
     if config.capture.renderer == "pbr":
         ctx["render_scale"] = resolve_render_scale(config)
     return ctx
+
+
+def learned_input_width(config: TrialConfig) -> int:
+    """The width (px) the ``learned`` segmenter's network reads in this trial: ``segmentation.options.input_width``,
+    else :class:`~torm.segmentation.learned.LearnedConfig`'s default; 0 = the capture's own width."""
+    from torm.segmentation.learned import LearnedConfig
+
+    return int(config.segmentation.options.get("input_width", LearnedConfig.input_width) or 0)
 
 
 def resolve_render_scale(config: TrialConfig) -> float:
@@ -314,9 +322,8 @@ def resolve_render_scale(config: TrialConfig) -> float:
     if config.method != "torm" or seg.segmenter != "learned":
         return 1.0
     from sim.camera_rig import CameraRigConfig
-    from torm.segmentation.learned import LearnedConfig
 
-    width = int(seg.options.get("input_width", LearnedConfig.input_width) or 0)
+    width = learned_input_width(config)
     capture_w = CameraRigConfig(scale=config.capture.scale).image_width
     return 1.0 if width <= 0 else min(1.0, max(0.05, width / capture_w))
 
