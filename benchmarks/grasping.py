@@ -28,6 +28,12 @@ shipped U-Net reading the rendered RGB); ``--renderer NAME`` renders every captu
 renderer (``capture.renderer``, e.g. ``pbr``). Both are named in the result file name
 (``grasping[_syn][_<renderer>][_seg-<segmenter>].json``) and in its config.
 
+``--segmenter learned --models v4fast,v4`` adds one TORM column per learned model (shipped short names or ``.onnx``
+paths; file name ``..._seg-learned-v4fast-v4``); ``--no-baselines`` skips the depth, oracle and GT-mask columns (the
+segmenter columns only); ``--tag NAME`` names a setting given by ``--set`` (for instance ``fast`` for
+``--set capture.pbr.spp=4 --set capture.pbr.render_scale=0``) in the result file and run folders, so runs of other
+overrides never share a folder.
+
 Realism: the ``measured`` profile (``sim/REALISM.md``) unless ``--set world.realism=ideal``; the profile goes into the
 run-folder name (``runs/bench_grasping_<suite>_<realism>``) and every table names it. Cells carry Wilson 95 %
 intervals. Time: about 15-60 s per trial here (TORM on 6-10 objects up to several minutes when contended).
@@ -109,6 +115,11 @@ def per_object_kind(runs: dict[str, Path]) -> dict[str, dict[str, str]]:
                 c[0] += all(o["outcome"] == "success" for o in objs)
                 c[1] += 1
     return {col: {k: f"{v[0]}/{v[1]}" for k, v in d.items()} for col, d in out.items()}
+
+
+def model_tag(model: str) -> str:
+    """A learned model's name in columns and file names: the shipped short name, or the file's stem."""
+    return model if "/" not in model and not model.endswith(".onnx") else Path(model).stem
 
 
 def column_of(column: str, row: dict[str, Any]) -> str:
@@ -199,7 +210,8 @@ def summarise(runs: dict[str, Path]) -> dict[str, Any]:
 
 def write_markdown(result: dict[str, Any], path: Path) -> None:
     seg = result["config"].get("segmenter")
-    order = ("depth", "depth_fusion", "oracle", "torm", "torm_noisy", f"torm_{seg}")
+    model_cols = [f"torm_{seg}-{model_tag(m)}" for m in result["config"].get("models") or []]
+    order = ("depth", "depth_fusion", "oracle", "torm", "torm_noisy", f"torm_{seg}", *model_cols)
     models = ("", "ideal", "statistical", "stereo")
 
     def rank(c: str) -> tuple[int, int, str]:
@@ -212,6 +224,8 @@ def write_markdown(result: dict[str, Any], path: Path) -> None:
     names["torm"] = f"{mode}, GT masks"
     names["torm_noisy"] = f"{mode}, seg. errors: {result['config'].get('noisy_preset', 'paper')}"
     names[f"torm_{seg}"] = f"{mode}, segmenter {seg}"
+    for c in model_cols:
+        names[c] = f"{mode}, segmenter {seg} model {c.rsplit('-', 1)[1]}"
     ctx_lines = [f"- `{c}`: " + ", ".join(f"{k} {v}" for k, v in x.items() if k != "method")
                  for c, xs in result.get("contexts", {}).items() for x in xs]
     paper = result["config"]["suite"] == "rw"
@@ -286,6 +300,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noisy-preset", default="paper", help="error-model preset of --noisy (default paper)")
     ap.add_argument("--segmenter", default=None,
                     help="add a TORM column with this segmenter's silhouettes (e.g. learned, grounded_sam)")
+    ap.add_argument("--models", default="", help="with --segmenter learned: one column per model, comma-separated "
+                    "(shipped short names v3, v4, v4ref, v4fast or .onnx paths; default the shipped v3)")
+    ap.add_argument("--no-baselines", action="store_true",
+                    help="only the segmenter column(s): skip the depth, oracle and GT-mask TORM columns")
+    ap.add_argument("--tag", default="", help="a name for this setting, added to the result file and run folders "
+                    "(e.g. fast for --set capture.pbr.spp=4 ...): runs of other overrides never share a folder")
     ap.add_argument("--renderer", default="mujoco", help="capture.renderer of every trial (default mujoco)")
     ap.add_argument("--fresh", action="store_true", help="start the run folders over instead of resuming")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -295,6 +315,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--recon-mode", default="fast", choices=tuple(MODE_NAMES),
                     help="TORM's reconstruction: fast (default) or paper (DMTet-Multi; TORM column only)")
     args = ap.parse_args(argv)
+    models = [m for m in args.models.split(",") if m]
+    if (models and args.segmenter != "learned") or (args.no_baselines and not args.segmenter):
+        raise SystemExit("--models needs --segmenter learned, and --no-baselines needs --segmenter (the only column)")
     if args.depth_models:
         return depth_comparison(args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -312,29 +335,36 @@ def main(argv: list[str] | None = None) -> int:
     realism = next((o.split("=", 1)[1] for o in args.overrides if o.startswith("world.realism=")), "measured")
     if not any(o.startswith("world.realism=") for o in args.overrides):
         args.overrides.append(f"world.realism={realism}")
-    folder = f"bench_grasping{suite_tag or '_rw'}{render_tag}{mode_tag}_{realism}"
+    set_tag = f"_{args.tag}" if args.tag else ""
+    folder = f"bench_grasping{suite_tag or '_rw'}{render_tag}{mode_tag}_{realism}{set_tag}"
     runs = {"main": RUNS / folder}
     preset_tag = "" if args.noisy_preset == "paper" else f"_{args.noisy_preset}"
     tag = (suite_tag + render_tag + mode_tag + ("" if realism == "ideal" else f"_{realism}")
-           + (preset_tag if args.noisy else "") + (f"_seg-{args.segmenter}" if args.segmenter else ""))
+           + (preset_tag if args.noisy else "") + (f"_seg-{args.segmenter}" if args.segmenter else "")
+           + "".join(f"-{model_tag(m)}" for m in models) + set_tag)
     if args.renderer != "mujoco":  # the default adds no override, so existing mujoco run folders still resume
         args.overrides = [*args.overrides, f"capture.renderer={args.renderer}"]
     overrides = (*args.overrides, "reconstruction.mode=paper") if paper else tuple(args.overrides)
-    run_benchmark(BenchConfig(methods=("torm",) if paper else ("depth", "oracle", "torm"), overrides=overrides,
-                              **base), runs["main"], fresh=args.fresh)
+    if not args.no_baselines:
+        run_benchmark(BenchConfig(methods=("torm",) if paper else ("depth", "oracle", "torm"), overrides=overrides,
+                                  **base), runs["main"], fresh=args.fresh)
+    else:
+        del runs["main"]
     if args.noisy:
         runs["torm_noisy"] = RUNS / f"{folder}_noisy{preset_tag}"
         ov = (*overrides, "segmentation.segmenter=noisy", f"segmentation.preset={args.noisy_preset}")
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs["torm_noisy"], fresh=args.fresh)
-    if args.segmenter:
-        col = f"torm_{args.segmenter}"
-        runs[col] = RUNS / f"{folder}_seg-{args.segmenter}"
-        ov = (*overrides, f"segmentation.segmenter={args.segmenter}")
+    for model in models or ([""] if args.segmenter else []):
+        col = f"torm_{args.segmenter}" + (f"-{model_tag(model)}" if model else "")
+        runs[col] = RUNS / f"{folder}_seg-{args.segmenter}" if not model else RUNS / f"{folder}_{col[5:]}"
+        ov = (*overrides, f"segmentation.segmenter={args.segmenter}",
+              *([f"segmentation.options.model={model}"] if model else []))
         run_benchmark(BenchConfig(methods=("torm",), overrides=ov, **base), runs[col], fresh=args.fresh)
     result = summarise(runs)
     cores = os.cpu_count() or 1
     result.update({
         "config": {"suite": args.suite, "trials": args.trials, "workers": args.workers, "scenarios": args.scenario,
+                   "models": models, "no_baselines": args.no_baselines, "tag": args.tag,
                    "overrides": args.overrides, "noisy": args.noisy,
                    "noisy_preset": args.noisy_preset, "segmenter": args.segmenter, "renderer": args.renderer,
                    "recon_mode": args.recon_mode, "recon_mode_name": MODE_NAMES[args.recon_mode]},

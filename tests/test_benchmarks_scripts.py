@@ -194,3 +194,26 @@ def test_perception_speed_scores_each_render_and_reads_auto_width(tmp_path: Path
         assert 0.0 <= r["glass_iou"] <= 1.0 and r["render_s_per_view"] > 0 and r["seg_s_per_view"] > 0
         assert r["glass_iou"] > 0.3, r  # rw1's glass is found at either resolution
     assert "capture s / 50 views" in (tmp_path / "out" / "perception_speed.md").read_text()
+
+
+def test_grasping_names_one_column_per_learned_model(tmp_path):
+    from benchmarks import grasping
+
+    assert grasping.model_tag("v4fast") == "v4fast" and grasping.model_tag("runs/x/my_seg.onnx") == "my_seg"
+    with pytest.raises(SystemExit, match="--models needs --segmenter learned"):
+        grasping.main(["--models", "v4", "--segmenter", "noisy"])
+    with pytest.raises(SystemExit, match="--no-baselines needs --segmenter"):
+        grasping.main(["--no-baselines"])
+    cell = {"k": 3, "n": 4, "trials_ok": 0, "trials": 1, "phantom_attempts": 0, "spurious": 1}
+    cols = ("torm_learned-v4fast", "torm_learned-v4")
+    result = {"config": {"suite": "lab", "segmenter": "learned", "models": ["v4fast", "v4"], "trials": 1,
+                         "workers": 2, "renderer": "pbr"},
+              "rows": [{"scenario": "lab1", "occ": 0.1, "objects": ["a", "b", "c", "d"], "paper_torm": None,
+                        **{c: cell for c in cols}}],
+              "totals": {c: {"objects": "3/4", "trials": "0/1", "spurious": 1} for c in cols},
+              "timings": {c: {"perception_s": 1.0} for c in cols}, "outcomes": {c: {"success": 3} for c in cols},
+              "contexts": {}, "date": "2026-12-06", "loadavg_before": [0, 0, 0], "contended": False, "versions": {}}
+    grasping.write_markdown(result, tmp_path / "g.md")
+    text = (tmp_path / "g.md").read_text()
+    assert "segmenter learned model v4fast | TORM-fast (consensus + narrow-band projective hull), segmenter learned " \
+           "model v4 |" in text and "| LAB1 | 10% | a, b, c, d | 3/4 (0/1) | 3/4 (0/1) |" in text

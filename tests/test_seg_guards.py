@@ -83,3 +83,50 @@ def test_torm_segment_defaults_to_the_shipped_learned_model(tmp_path, capsys):
     meta = json.loads((tmp_path / "out" / "transforms.json").read_text())["metadata"]
     assert meta[MASK_SOURCE_KEY].startswith("segmenter learned (learned_seg.onnx@sha256:")
     assert np.asarray(load_capture(tmp_path / "out").masks()).shape == (2, 64, 64)
+
+
+def _rig_view_capture(width: int = 640, height: int = 360, hfov_deg: float = 91.5) -> Capture:
+    from torm.types import CameraView
+
+    f = 0.5 * width / np.tan(np.deg2rad(hfov_deg) / 2)
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
+    rgb = np.full((height, width, 3), 90, np.uint8)
+    return Capture(views=(CameraView(K=K, T_world_cam=np.eye(4), rgb=rgb, name="v0"),),
+                   metadata={"renderer": "pbr mitsuba 3.9.1 llvm_ad_rgb spp 16"})
+
+
+def test_the_pixel_scale_warning_names_the_width_that_reads_at_the_trained_scale(caplog):
+    cap = _rig_view_capture()  # the rig's 640 x 360 frame, the shipped model's training scale
+    _DOMAIN_WARNED.clear()
+    with caplog.at_level(logging.WARNING, logger="torm.segmentation.learned"):
+        at_scale = make_segmenter("learned", {"threads": 1}).segment(cap)
+    assert at_scale.info["input_width"] == 640 and abs(at_scale.info["pixel_scale"]["ratio"] - 1) < 1e-9
+    assert at_scale.info["pixel_scale"]["within"] and not [r for r in caplog.records if "trained scale" in
+                                                             r.getMessage()]
+    with caplog.at_level(logging.WARNING, logger="torm.segmentation.learned"):
+        half = make_segmenter("learned", {"threads": 1, "input_width": 320}).segment(cap)
+    assert abs(half.info["pixel_scale"]["ratio"] - 0.5) < 1e-9 and not half.info["pixel_scale"]["within"]
+    warned = [r.getMessage() for r in caplog.records if "trained scale" in r.getMessage()]
+    assert len(warned) == 1 and "0.50x" in warned[0] and "input_width=640" in warned[0]
+
+
+def test_the_input_width_defaults_to_the_width_of_the_models_training_frames(tmp_path):
+    import shutil
+
+    from torm import config
+    from torm.pipeline import TrialConfig, learned_input_width
+    from torm.segmentation.learned import DEFAULT_MODEL, LearnedConfig, card_input_width
+
+    assert card_input_width(DEFAULT_MODEL) == 640 and LearnedConfig().resolved_input_width() == 640
+    assert LearnedConfig(model="v4").model_path.name == "learned_seg_v4.onnx"  # a shipped model's short name
+    small = tmp_path / "small.onnx"
+    shutil.copy(DEFAULT_MODEL, small)
+    assert card_input_width(small) == 640  # no card: the pipeline's frame width
+    small.with_suffix(".json").write_text(json.dumps({"data": {"full_width": 320, "hfov_deg": 91.5}}))
+    assert card_input_width(small) == 320
+    seg = make_segmenter("learned", {"threads": 1, "model": str(small)})
+    assert seg.input_width == 320
+    assert make_segmenter("learned", {"threads": 1, "model": str(small), "input_width": 0}).input_width == 0
+    cfg = config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=[
+        "segmentation.segmenter=learned", f"segmentation.options.model={small}"])
+    assert learned_input_width(cfg) == 320

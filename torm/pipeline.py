@@ -304,10 +304,15 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
 
 def learned_input_width(config: TrialConfig) -> int:
     """The width (px) the ``learned`` segmenter's network reads in this trial: ``segmentation.options.input_width``,
-    else :class:`~torm.segmentation.learned.LearnedConfig`'s default; 0 = the capture's own width."""
+    else the width of its model's training frames (:func:`torm.segmentation.learned.card_input_width`); 0 = the
+    capture's own width."""
     from torm.segmentation.learned import LearnedConfig
 
-    return int(config.segmentation.options.get("input_width", LearnedConfig.input_width) or 0)
+    opts = config.segmentation.options
+    width = opts.get("input_width")
+    if width is None:
+        return LearnedConfig(model=str(opts.get("model") or "")).resolved_input_width()
+    return int(width or 0)
 
 
 def resolve_render_scale(config: TrialConfig) -> float:

@@ -15,9 +15,10 @@ Model file signature (``model``; default the shipped ``models/learned_seg.onnx``
            centre (sigmoid -> prob), 3-4 offset (dy, dx) to the instance's centre in units of
            ``OFFSET_SCALE`` px of the network input.
 
-Each view is resized to ``input_width`` px wide (aspect kept; the shipped model was trained on the
-pipeline's 640x360 frames of the 91.5 deg camera, so objects should have about that pixel size),
-padded, run, cropped and the probabilities resized back to the capture size (bilinear).
+Each view is resized to ``input_width`` px wide (aspect kept), padded, run, cropped and the probabilities resized
+back to the capture size (bilinear). Unset, ``input_width`` is the width of the frames the model was trained on
+(its card's ``data.full_width``: 640 px for the shipped model, the pipeline's 640x360 frames of the 91.5 deg camera;
+320 px for ``learned_seg_v4fast``), so that objects have the pixel size the model learned.
 Training, data recipe and held-out metrics: the JSON beside the model file (``models/learned_seg.json``).
 """
 
@@ -43,6 +44,10 @@ log = logging.getLogger(__name__)
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "learned_seg.onnx"
+#: short names of the shipped models (``learned.model``): v3 (the default), v4 (trained for transfer to real photos),
+#: v4ref (reference mode: reads each view with its empty-workspace view), v4fast (v4's recipe at 4 spp and 320 px)
+SHIPPED_MODELS = {"v3": "learned_seg.onnx", "v4": "learned_seg_v4.onnx", "v4ref": "learned_seg_v4ref.onnx",
+                  "v4fast": "learned_seg_v4fast.onnx"}
 INPUTS = (TensorSpec("image", ("image",), (1, None, None, None)),)
 #: input channel counts a model file may have: RGB, or RGB + the reference view's RGB (reference mode)
 IN_CHANNELS = (3, 6)
@@ -77,7 +82,8 @@ POSTPROCESS_DEFAULTS: dict[str, Any] = {"fg_threshold": 0.5, "boundary_threshold
 class LearnedConfig:
     """Settings of the learned segmenter (thresholds are probabilities; sizes in pixels of the capture).
 
-    ``model`` empty = the shipped file. ``input_width`` 0 = the capture's own width.
+    ``model`` empty = the shipped file. ``input_width`` 0 = the capture's own width; None (unset) = the width of
+    the model's training frames (:func:`card_input_width`).
     ``min_area_px`` / ``min_core_px`` refer to the network input resolution.
     ``fg_threshold``, ``boundary_threshold``, ``min_core_px`` and ``flip_tta`` left unset (None) come from the
     model card's ``postprocess`` entry (calibrated on the model's validation split by
@@ -93,7 +99,7 @@ class LearnedConfig:
     """
 
     model: str = ""
-    input_width: int = 640
+    input_width: int | None = None
     fg_threshold: float | None = None
     boundary_threshold: float | None = None
     min_core_px: int | None = None
@@ -118,7 +124,8 @@ class LearnedConfig:
             v = getattr(self, name)
             if v is not None and not 0.0 < v < 1.0:
                 raise ConfigError(f"learned.{name} = {v} must be in (0, 1)")
-        if self.input_width < 0 or (self.input_width and self.input_width < STRIDE):
+        w = self.input_width
+        if w is not None and (w < 0 or 0 < w < STRIDE):
             raise ConfigError(f"learned.input_width must be 0 (capture width) or >= {STRIDE} px")
         if (self.min_core_px is not None and self.min_core_px < 1) or self.min_area_px < 0 or self.threads < 0:
             raise ConfigError("learned: need min_core_px >= 1, min_area_px >= 0, threads >= 0")
@@ -127,7 +134,34 @@ class LearnedConfig:
 
     @property
     def model_path(self) -> Path:
-        return Path(self.model).expanduser() if self.model else DEFAULT_MODEL
+        """The ONNX file: ``model`` as a path, a shipped model's short name (:data:`SHIPPED_MODELS`), or empty for
+        the default."""
+        if not self.model:
+            return DEFAULT_MODEL
+        if self.model in SHIPPED_MODELS:
+            return MODELS_DIR / SHIPPED_MODELS[self.model]
+        return Path(self.model).expanduser()
+
+    def resolved_input_width(self) -> int:
+        """The width (px) the network reads: ``input_width``, or unset the model card's (:func:`card_input_width`);
+        0 = the capture's own width."""
+        return int(self.input_width) if self.input_width is not None else card_input_width(self.model_path)
+
+
+#: the input width of a model whose card names no training frame width (px): the pipeline's 640x360 frames
+DEFAULT_INPUT_WIDTH = 640
+
+
+def card_input_width(model_path: str | Path) -> int:
+    """The width (px) of the frames a model was trained on, from its card (``<model>.json``, ``data.full_width``):
+    reading views at that width gives objects the pixel size the model learned. :data:`DEFAULT_INPUT_WIDTH` when the
+    card is missing or names none."""
+    card = Path(model_path).expanduser().with_suffix(".json")
+    try:
+        width = json.loads(card.read_text()).get("data", {}).get("full_width") if card.is_file() else None
+    except (OSError, ValueError):
+        width = None
+    return int(width) if width else DEFAULT_INPUT_WIDTH
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
@@ -157,6 +191,8 @@ class LearnedSegmenter(Segmenter):
         self.in_channels = int(cin)
         card = c.model_path.with_suffix(".json")
         self.card: dict[str, Any] = json.loads(card.read_text()) if card.is_file() else {}
+        #: the width (px) the network reads each view at; 0 = the view's own width
+        self.input_width = c.resolved_input_width()
         post = self.card.get("postprocess", {})
         #: the post-processing in use: the config's values, else the card's calibration, else the defaults
         self.postprocess: dict[str, Any] = {k: getattr(c, k) if getattr(c, k) is not None else post.get(k, d)
@@ -210,7 +246,7 @@ class LearnedSegmenter(Segmenter):
 
     def _maps(self, rgb: np.ndarray) -> np.ndarray:
         h, w = rgb.shape[:2]
-        tw = self.config.input_width or w
+        tw = self.input_width or w
         th = max(int(round(h * tw / w)), 1)
         ph, pw = -th % STRIDE, -tw % STRIDE
         parts = []
@@ -237,7 +273,7 @@ class LearnedSegmenter(Segmenter):
         ``reference``: the empty workspace's view (reference-mode models)."""
         c, pp = self.config, self.postprocess
         maps = self.maps(rgb, reference=reference)
-        lin = rgb.shape[1] / (c.input_width or rgb.shape[1])  # image px per network input px
+        lin = rgb.shape[1] / (self.input_width or rgb.shape[1])  # image px per network input px
         mask, scores = instances_from_maps(
             maps, pp["grouping"], pp["fg_threshold"], pp["boundary_threshold"],
             max(int(round(pp["min_core_px"] * lin ** 2)), 1), int(round(c.min_area_px * lin ** 2)),
@@ -269,9 +305,35 @@ class LearnedSegmenter(Segmenter):
                         model_path.name, dom, there, ", ".join(where) or "nothing its card lists")
         return {"domain": dom, "validated": validated, "measured": entry.get("value")}
 
+    def check_pixel_scale(self, capture: Capture) -> dict[str, Any] | None:
+        """How large objects appear to the network against its training: the focal length in network-input pixels
+        (the first view's ``fx`` x input width / view width) over that of the model's training frames (its card's
+        ``data.full_width`` and ``hfov_deg``), and the range its training magnification covered (``train.zoom_range``).
+        Warns once per model and image size when the ratio lies more than 1.5x outside that range, naming the
+        ``input_width`` that reads at the trained scale. None when the card names no training camera. Unitless."""
+        data, train = self.card.get("data") or {}, self.card.get("train") or {}
+        if not data.get("full_width") or not data.get("hfov_deg"):
+            return None
+        f_train = 0.5 * float(data["full_width"]) / np.tan(np.deg2rad(float(data["hfov_deg"])) / 2)
+        v = capture.views[0]
+        read_w = self.input_width or v.width
+        ratio = float(v.K[0, 0]) * read_w / v.width / f_train
+        lo, hi = (float(z) for z in train.get("zoom_range") or (1.0, 1.0))
+        ok = lo / PIXEL_SCALE_SLACK <= ratio <= hi * PIXEL_SCALE_SLACK
+        key = (str(self.config.model_path), f"scale {v.width}x{v.height} @{read_w}")
+        if not ok and key not in _DOMAIN_WARNED:
+            _DOMAIN_WARNED.add(key)
+            best = int(round(v.width * f_train * np.sqrt(lo * hi) / float(v.K[0, 0]) / STRIDE)) * STRIDE
+            log.warning("learned segmenter %s reads these %dx%d views at %d px wide, where objects appear %.2fx the "
+                        "size of its training frames (it was trained on %.2f-%.2fx); expect worse silhouettes. Set "
+                        "segmentation.options.input_width=%d to read them at its trained scale", self.config.
+                        model_path.name, v.width, v.height, read_w, ratio, lo, hi, max(best, STRIDE))
+        return {"ratio": ratio, "trained": [lo, hi], "within": ok}
+
     def segment(self, capture: Capture) -> SegmentationResult:
         t0 = time.perf_counter()
         domain = self.check_domain(capture)
+        scale = self.check_pixel_scale(capture)
         masks, dets = [], []
         for i, view in enumerate(capture.views):
             if view.rgb is None:
@@ -282,6 +344,7 @@ class LearnedSegmenter(Segmenter):
         out = np.stack(masks)
         info: dict[str, Any] = {"segmenter": self.name, "model": str(self.config.model_path),
                                 "model_fingerprint": model_fingerprint(self.config.model_path), "domain": domain,
+                                "input_width": self.input_width, "pixel_scale": scale,
                                 "model_renderer": self.card.get("data", {}).get("renderer"),
                                 "postprocess": dict(self.postprocess)}
         info.update(score_against_capture(out, capture))
@@ -289,6 +352,8 @@ class LearnedSegmenter(Segmenter):
 
 
 _SHIPPED: list[LearnedSegmenter] = []
+#: how far (a factor) outside its training magnification a model may read objects before the pixel-scale warning
+PIXEL_SCALE_SLACK = 1.5
 #: (model path, domain) pairs already warned about in this process (the domain warning fires once).
 _DOMAIN_WARNED: set[tuple[str, str]] = set()
 
