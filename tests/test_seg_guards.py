@@ -130,3 +130,5 @@ def test_the_input_width_defaults_to_the_width_of_the_models_training_frames(tmp
     cfg = config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=[
         "segmentation.segmenter=learned", f"segmentation.options.model={small}"])
     assert learned_input_width(cfg) == 320
+    small.with_suffix(".json").write_text(json.dumps({"data": {"full_width": 320}, "finetune": {"input_width": 512}}))
+    assert card_input_width(small) == 512  # fine-tuned on a user's frames: the width it was tuned at

@@ -153,13 +153,15 @@ DEFAULT_INPUT_WIDTH = 640
 
 
 def card_input_width(model_path: str | Path) -> int:
-    """The width (px) of the frames a model was trained on, from its card (``<model>.json``, ``data.full_width``):
+    """The width (px) of the frames a model was trained on, from its card (``<model>.json``: ``finetune.input_width``
+    for a model fine-tuned on a user's frames, else ``data.full_width``):
     reading views at that width gives objects the pixel size the model learned. :data:`DEFAULT_INPUT_WIDTH` when the
     card is missing or names none."""
     card = Path(model_path).expanduser().with_suffix(".json")
     try:
-        width = json.loads(card.read_text()).get("data", {}).get("full_width") if card.is_file() else None
-    except (OSError, ValueError):
+        d = json.loads(card.read_text()) if card.is_file() else {}
+        width = (d.get("finetune") or {}).get("input_width") or (d.get("data") or {}).get("full_width")
+    except (OSError, ValueError, AttributeError):
         width = None
     return int(width) if width else DEFAULT_INPUT_WIDTH
 
@@ -310,9 +312,10 @@ class LearnedSegmenter(Segmenter):
         (the first view's ``fx`` x input width / view width) over that of the model's training frames (its card's
         ``data.full_width`` and ``hfov_deg``), and the range its training magnification covered (``train.zoom_range``).
         Warns once per model and image size when the ratio lies more than 1.5x outside that range, naming the
-        ``input_width`` that reads at the trained scale. None when the card names no training camera. Unitless."""
+        ``input_width`` that reads at the trained scale. None when the card names no training camera, or the model was
+        fine-tuned on a user's frames (their camera is not recorded). Unitless."""
         data, train = self.card.get("data") or {}, self.card.get("train") or {}
-        if not data.get("full_width") or not data.get("hfov_deg"):
+        if not data.get("full_width") or not data.get("hfov_deg") or self.card.get("finetune"):
             return None
         f_train = 0.5 * float(data["full_width"]) / np.tan(np.deg2rad(float(data["hfov_deg"])) / 2)
         v = capture.views[0]

@@ -111,19 +111,22 @@ def load_labelled_frames(folder: str | Path, input_width: int = 640) -> tuple[np
 
 
 def finetune(folder: str | Path, out: str | Path, base_model: str | Path = "", steps: int = 300,
-             work: str | Path | None = None, threads: int = 1, seed: int = 0, input_width: int = 640,
+             work: str | Path | None = None, threads: int = 1, seed: int = 0, input_width: int | None = None,
              progress: bool = True) -> dict[str, Any]:
     """Fine-tune ``base_model`` (default: the shipped model) on the frames of ``folder`` for ``steps`` steps and
     export ``out`` (.onnx) with its card (.json). ``work`` (default ``<out>.work``) holds the resumable checkpoint.
 
     There is no validation split (a handful of frames): the exported weights are the best on the training frames
     themselves, which says nothing about other frames; measure on frames it did not see (``benchmarks/
-    segmentation_real.py --finetune-loo`` does so leave-one-frame-out)."""
-    from torm.segmentation.learned import DEFAULT_MODEL, model_fingerprint
+    segmentation_real.py --finetune-loo`` does so leave-one-frame-out). ``base_model``: a path or a shipped model's
+    short name (``v4``); ``input_width`` (px, None = the base model's training frame width; the fine-tuned card
+    records it as ``finetune.input_width``): the width the frames are resized to, the width the fine-tuned model
+    then reads."""
+    from torm.segmentation.learned import LearnedConfig, card_input_width, model_fingerprint
     from torm.segmentation.training.model import SegUNet  # noqa: F401  (torch present: a clear ImportError early)
     from torm.segmentation.training.train import TrainConfig, export_onnx, load_best, train, write_card
 
-    base = Path(base_model).expanduser() if base_model else DEFAULT_MODEL
+    base = LearnedConfig(model=str(base_model or "")).model_path
     card_p = base.with_suffix(".json")
     if not base.is_file() or not card_p.is_file():
         raise ConfigError(f"base model {base} (and its card {card_p.name}) must exist; train one or use the shipped "
@@ -131,6 +134,7 @@ def finetune(folder: str | Path, out: str | Path, base_model: str | Path = "", s
     base_card = json.loads(card_p.read_text())
     if steps < 1:
         raise ConfigError(f"fine-tune steps = {steps} must be >= 1")
+    input_width = int(input_width or card_input_width(base))
     rgb, mask, files = load_labelled_frames(folder, input_width)
     base_train = base_card.get("train", {})
     crop_h = min(192, rgb.shape[1] - rgb.shape[1] % 16)
