@@ -115,10 +115,11 @@ def test_the_input_width_defaults_to_the_width_of_the_models_training_frames(tmp
 
     from torm import config
     from torm.pipeline import TrialConfig, learned_input_width
-    from torm.segmentation.learned import DEFAULT_MODEL, LearnedConfig, card_input_width
+    from torm.segmentation.learned import DEFAULT_MODEL, LearnedConfig, card_input_width, model_fingerprint
 
     assert card_input_width(DEFAULT_MODEL) == 640 and LearnedConfig().resolved_input_width() == 640
     assert LearnedConfig(model="v4").model_path.name == "learned_seg_v4.onnx"  # a shipped model's short name
+    assert model_fingerprint("v4").startswith("learned_seg_v4.onnx@sha256:")  # what a trial context names
     small = tmp_path / "small.onnx"
     shutil.copy(DEFAULT_MODEL, small)
     assert card_input_width(small) == 640  # no card: the pipeline's frame width

@@ -61,11 +61,12 @@ OFFSET_SCALE = 10.0
 #: post-processing used when neither the config nor the model card sets it (the first model's untuned values;
 #: ``grouping`` None = ``centre`` for a centre-head model, else ``boundary``)
 def model_fingerprint(model: str | Path = "") -> str:
-    """``<file name>@sha256:<first 12 hex>`` of a learned-segmenter model file (``""``: the shipped one), or
+    """``<file name>@sha256:<first 12 hex>`` of a learned-segmenter model file (``""``: the shipped one; a short name
+    such as ``v4``: that shipped model), or
     ``<file name>@missing``: what a result record names as the model that segmented it."""
     import hashlib
 
-    path = Path(model).expanduser() if model else DEFAULT_MODEL
+    path = LearnedConfig(model=str(model or "")).model_path  # a path or a shipped model's short name
     try:
         digest = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
     except OSError:
