@@ -58,8 +58,8 @@ STRIDE = 16
 #: offsets are stored in units of this many px (must equal ``training.model.OFFSET_SCALE``; kept here so that
 #: inference does not import torch)
 OFFSET_SCALE = 10.0
-#: post-processing used when neither the config nor the model card sets it (the first model's untuned values;
-#: ``grouping`` None = ``centre`` for a centre-head model, else ``boundary``)
+
+
 def model_fingerprint(model: str | Path = "") -> str:
     """``<file name>@sha256:<first 12 hex>`` of a learned-segmenter model file (``""``: the shipped one; a short name
     such as ``v4``: that shipped model), or
@@ -74,6 +74,8 @@ def model_fingerprint(model: str | Path = "") -> str:
     return f"{path.name}@sha256:{digest}"
 
 
+#: post-processing used when neither the config nor the model card sets it (the first model's untuned values;
+#: ``grouping`` None = ``centre`` for a centre-head model, else ``boundary``)
 POSTPROCESS_DEFAULTS: dict[str, Any] = {"fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
                                         "flip_tta": False, "grouping": None, "centre_threshold": 0.3, "nms_px": 5,
                                         "max_vote_px": 20.0}
