@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     from sim.render.textures import table_texture
     from torm.capture.io import load_capture
     from torm.segmentation import make_segmenter
-    from torm.segmentation.learned import MODELS_DIR, model_fingerprint
+    from torm.segmentation.learned import LearnedConfig, model_fingerprint
 
     renders = [parse_render(r) for r in args.renders.split(",") if r]
     rows = [parse_row(r) for r in args.rows.split(",") if r]
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def segmenter(model: str, width: int, tta: bool | None) -> tuple[str, Any]:
         if (width, model, tta) not in segs:
-            path = Path(model).expanduser() if model.endswith(".onnx") else MODELS_DIR / f"{model}.onnx"
+            path = LearnedConfig(model=model).model_path
             opts: dict[str, Any] = {"model": str(path), "threads": 1, "input_width": width}
             if tta is not None:
                 opts["flip_tta"] = tta

@@ -76,11 +76,10 @@ def segment_frame(model: Path, input_width: int, rgb: np.ndarray) -> tuple[np.nd
 
 
 def model_path(name: str) -> Path:
-    """A shipped model's name (``learned_seg_v2``) or a path to an ``.onnx`` file."""
-    from torm.segmentation.learned import MODELS_DIR
+    """A shipped model's file stem (``learned_seg_v2``) or short name (``v4``), or a path to an ``.onnx`` file."""
+    from torm.segmentation.learned import LearnedConfig
 
-    p = Path(name).expanduser()
-    return p if p.suffix == ".onnx" else MODELS_DIR / f"{name}.onnx"
+    return LearnedConfig(model=name).model_path
 
 
 def score_model(model: Path, width: int, frames: list[tuple[str, np.ndarray, np.ndarray]]) -> list[dict[str, Any]]:

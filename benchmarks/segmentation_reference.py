@@ -75,12 +75,12 @@ def _capture_job(args: tuple[str, int, int, float, int, str, str]) -> str:
 def make_row(row: str) -> tuple[str, Any]:
     """(label, segmenter) of a ``--rows`` entry."""
     from torm.segmentation import make_segmenter
-    from torm.segmentation.learned import MODELS_DIR, model_fingerprint
+    from torm.segmentation.learned import LearnedConfig, model_fingerprint
 
     kind, _, model = row.partition(":")
     if kind == "difference":
         return "difference", make_segmenter("difference")
-    path = Path(model).expanduser() if model.endswith(".onnx") else MODELS_DIR / f"{model}.onnx"
+    path = LearnedConfig(model=model).model_path
     seg = make_segmenter("learned", {"model": str(path), "threads": 2})
     if kind == "reference" and not seg.needs_reference:
         raise SystemExit(f"{path} is not a reference-mode model (3 input channels); use learned:{model}")

@@ -119,6 +119,7 @@ def test_the_input_width_defaults_to_the_width_of_the_models_training_frames(tmp
 
     assert card_input_width(DEFAULT_MODEL) == 640 and LearnedConfig().resolved_input_width() == 640
     assert LearnedConfig(model="v4").model_path.name == "learned_seg_v4.onnx"  # a shipped model's short name
+    assert LearnedConfig(model="learned_seg_v4").model_path == LearnedConfig(model="v4").model_path  # or file stem
     assert model_fingerprint("v4").startswith("learned_seg_v4.onnx@sha256:")  # what a trial context names
     small = tmp_path / "small.onnx"
     shutil.copy(DEFAULT_MODEL, small)

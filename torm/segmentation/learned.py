@@ -137,12 +137,14 @@ class LearnedConfig:
 
     @property
     def model_path(self) -> Path:
-        """The ONNX file: ``model`` as a path, a shipped model's short name (:data:`SHIPPED_MODELS`), or empty for
-        the default."""
+        """The ONNX file: ``model`` as a path, a shipped model's short name (:data:`SHIPPED_MODELS`) or file stem
+        (``learned_seg_v4``), or empty for the default."""
         if not self.model:
             return DEFAULT_MODEL
         if self.model in SHIPPED_MODELS:
             return MODELS_DIR / SHIPPED_MODELS[self.model]
+        if "/" not in self.model and not self.model.endswith(".onnx") and (MODELS_DIR / f"{self.model}.onnx").is_file():
+            return MODELS_DIR / f"{self.model}.onnx"  # a shipped file's stem, e.g. learned_seg_v4
         return Path(self.model).expanduser()
 
     def resolved_input_width(self) -> int:
@@ -163,9 +165,15 @@ def card_input_width(model_path: str | Path) -> int:
     card = Path(model_path).expanduser().with_suffix(".json")
     try:
         d = json.loads(card.read_text()) if card.is_file() else {}
-        width = (d.get("finetune") or {}).get("input_width") or (d.get("data") or {}).get("full_width")
-    except (OSError, ValueError, AttributeError):
-        width = None
+    except (OSError, ValueError):
+        d = {}
+    return training_width(d)
+
+
+def training_width(card: dict[str, Any]) -> int:
+    """:func:`card_input_width` of an already loaded model card (px)."""
+    card = card if isinstance(card, dict) else {}
+    width = (card.get("finetune") or {}).get("input_width") or (card.get("data") or {}).get("full_width")
     return int(width) if width else DEFAULT_INPUT_WIDTH
 
 
@@ -197,7 +205,7 @@ class LearnedSegmenter(Segmenter):
         card = c.model_path.with_suffix(".json")
         self.card: dict[str, Any] = json.loads(card.read_text()) if card.is_file() else {}
         #: the width (px) the network reads each view at; 0 = the view's own width
-        self.input_width = c.resolved_input_width()
+        self.input_width = int(c.input_width) if c.input_width is not None else training_width(self.card)
         post = self.card.get("postprocess", {})
         #: the post-processing in use: the config's values, else the card's calibration, else the defaults
         self.postprocess: dict[str, Any] = {k: getattr(c, k) if getattr(c, k) is not None else post.get(k, d)
