@@ -51,6 +51,8 @@ CENTRE_FG = (0.3, 0.4, 0.5, 0.6)
 CENTRE_THR = (0.1, 0.2, 0.3, 0.5)
 NMS = (3, 6, 10, 15)
 VOTE = (10.0, 20.0, 40.0)
+#: val scores a setting can be chosen on (``--select-on``)
+SELECT_ON = ("object_iou", "silhouette_iou")
 #: every setting key, with the untuned defaults (LearnedSegmenter's POSTPROCESS_DEFAULTS for a 2-map model)
 DEFAULT = {"grouping": "boundary", "fg_threshold": 0.5, "boundary_threshold": 0.5, "min_core_px": 8,
            "flip_tta": False, "centre_threshold": 0.3, "nms_px": 5, "max_vote_px": 20.0}
@@ -85,6 +87,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add_split_args(p)
     p.add_argument("--write-card", action="store_true", help="store the chosen setting in the model card")
     p.add_argument("--quick", action="store_true", help="tiny grid and 1 shard per split (for tests)")
+    p.add_argument("--select-on", choices=SELECT_ON, default="object_iou",
+                   help="the val score that picks the setting: object_iou (best-match IoU per GT object; blind to "
+                        "false positives) or silhouette_iou (union IoU per view: false positives on opaque "
+                        "look-alikes count)")
     return p.parse_args(argv)
 
 
@@ -95,6 +101,9 @@ def add_split_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", default="", help="ONNX file (default: the shipped model)")
     p.add_argument("--cache", type=Path, default=None, help="--quick: folder for its tiny MuJoCo-rendered splits")
     p.add_argument("--threads", type=int, default=bc.THREADS)
+    p.add_argument("--test-shards", type=int, default=1,
+                   help="shards per test split when the card's recipe rendered none (v4's trained on train and val "
+                        "only); the test splits' shards are new seeds either way")
 
 
 def val_split(seg: Any) -> str:
@@ -106,6 +115,8 @@ def val_split(seg: Any) -> str:
 def card_splits(a: argparse.Namespace, seg: Any, splits: tuple[str, ...]) -> tuple[Any, dict[str, Any]]:
     """(data recipe, {split: loaded split}) of the model card's recipe, rendered first if missing
     (``--quick``: 1 tiny MuJoCo-rendered shard per split)."""
+    import dataclasses
+
     from torm.config import from_dict
     from torm.segmentation.training.dataset import DataRecipe, generate, load_split
 
@@ -114,11 +125,13 @@ def card_splits(a: argparse.Namespace, seg: Any, splits: tuple[str, ...]) -> tup
     recipe = from_dict(DataRecipe, dict(seg.card["data"]), where="model card data recipe")
     data_dir = a.data or bc.ROOT / "runs" / "seg_data" / recipe.renderer
     if a.quick:
-        import dataclasses
-
         recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in splits}, scenes_per_shard=1,
                                      test_views=4)
         data_dir = a.data or (a.cache or bc.ROOT / "runs") / "seg_data_quick_mujoco"
+    missing = {s: int(getattr(a, "test_shards", 1)) for s in splits if s.startswith("test") and not
+               recipe.shards.get(s)}
+    if missing:
+        recipe = dataclasses.replace(recipe, shards={**recipe.shards, **missing})
     generate(recipe, data_dir, splits=splits)
     return recipe, {s: load_split(data_dir, s) for s in splits}
 
@@ -175,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     val_rows = []
     for st in tqdm(settings, desc="val grid", unit="setting"):
         val_rows.append(_row(val, st, score(probs[val][st["flip_tta"]], data[val], st, held)))
-    best = max(val_rows, key=lambda r: r["object_iou"])
+    best = max(val_rows, key=lambda r: r[a.select_on])
     chosen = {k: best[k] for k in DEFAULT}
     default_val = next(r for r in val_rows if all(r[k] == v for k, v in default.items()))
     test_rows = []
@@ -187,8 +200,8 @@ def main(argv: list[str] | None = None) -> int:
     args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
     doc = {"context": bc.context(args), "model": seg.config.model_path.name, "renderer": recipe.renderer,
            "recipe": recipe.to_dict(), "val_split": val, "views": {s: int(len(data[s]["rgb"])) for s in splits},
-           "channels": seg.channels, "network_seconds": net_s, "default": default, "chosen": chosen,
-           "val_default": default_val,
+           "channels": seg.channels, "network_seconds": net_s, "select_on": a.select_on, "default": default,
+           "chosen": chosen, "val_default": default_val,
            "val_best": best, "val_grid": val_rows, "test": test_rows}
     a.out.mkdir(parents=True, exist_ok=True)
     bc.write_json(a.out / "seg_postprocess.json", json.loads(json.dumps(doc, default=str)))
@@ -199,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
         card["postprocess"] = card_entry(doc)
         path.write_text(json.dumps(card, indent=2) + "\n")
         log.info("wrote the chosen post-processing into %s", path)
-    log.info("chosen %s: val %.3f (default %.3f)", chosen, best["object_iou"], default_val["object_iou"])
+    log.info("chosen %s: val %s %.3f (default %.3f)", chosen, a.select_on, best[a.select_on],
+             default_val[a.select_on])
     return 0
 
 
@@ -207,8 +221,11 @@ def card_entry(doc: dict[str, Any]) -> dict[str, Any]:
     """The model card's ``postprocess`` entry: the chosen setting, how it was chosen and its test figures."""
     keys = ("silhouette_iou", "object_iou", "held_out_iou", "miss_rate", "false_pos_per_view")
     test = {f"{r['split']} ({r['setting']})": {k: r[k] for k in keys} for r in doc["test"]}
-    return {**doc["chosen"], "chosen_by": "benchmarks/seg_postprocess.py: best mean object IoU on the "
+    on = doc.get("select_on", "object_iou")
+    return {**doc["chosen"], "chosen_by": f"benchmarks/seg_postprocess.py: best mean {on.replace('_', ' ')} on the "
             f"{doc.get('val_split', 'val')} split",
+            "val_silhouette_iou": doc["val_best"]["silhouette_iou"],
+            "val_silhouette_iou_default": doc["val_default"]["silhouette_iou"],
             "val_object_iou": doc["val_best"]["object_iou"], "val_object_iou_default": doc["val_default"]["object_iou"],
             "test": test, "date_utc": doc["context"]["date_utc"]}
 
@@ -222,11 +239,12 @@ def report(doc: dict[str, Any]) -> str:
             "false pos / view"]
     rows = [[r["split"], r["setting"], *[r.get(k) for k in keys], r["silhouette_iou"], r["object_iou"],
              r["held_out_iou"], r["miss_rate"], r["false_pos_per_view"]] for r in doc["test"]]
-    top = sorted(doc["val_grid"], key=lambda r: -r["object_iou"])[:10]
+    on = doc.get("select_on", "object_iou")
+    top = sorted(doc["val_grid"], key=lambda r: -r[on])[:10]
     best_by = {}
     for r in doc["val_grid"]:
         g = r.get("grouping", "boundary")
-        if g not in best_by or r["object_iou"] > best_by[g]["object_iou"]:
+        if g not in best_by or r[on] > best_by[g][on]:
             best_by[g] = r
     vrows = [[*[r.get(k) for k in keys], r["silhouette_iou"], r["object_iou"], r["miss_rate"],
               r["false_pos_per_view"]] for r in [doc["val_default"], *top, *best_by.values()]]
@@ -237,7 +255,8 @@ def report(doc: dict[str, Any]) -> str:
         "splits\n\n"
         "Generated by `benchmarks/seg_postprocess.py`. Model `" + doc["model"] + "`, test renders from its card's "
         f"recipe (renderer `{doc['renderer']}`); views: {doc['views']}. The settings are chosen on "
-        f"`{doc.get('val_split', 'val')}` only (best mean object IoU); `test_layouts` / `test_shapes` are "
+        f"`{doc.get('val_split', 'val')}` only (best mean "
+        f"{doc.get('select_on', 'object_iou').replace('_', ' ')}); `test_layouts` / `test_shapes` are "
         "measured once with the default and once with "
         "the chosen setting. Object IoU: best-match IoU per (view, GT object with >= 100 visible px); a miss is "
         "IoU < 0.5. Flip TTA: the maps averaged with those of the horizontally flipped view (2 network "

@@ -82,6 +82,18 @@ def model_path(name: str) -> Path:
     return LearnedConfig(model=name).model_path
 
 
+def postprocess_source(model: Path) -> str:
+    """Where ``model``'s instance post-processing comes from: its card's calibrated entry (and when) or the defaults."""
+    import json
+
+    card_p = model.with_suffix(".json")
+    pp = json.loads(card_p.read_text()).get("postprocess") if card_p.is_file() else None
+    if not pp:
+        return "untuned post-processing"
+    when = str(pp.get("date_utc", ""))[:10]
+    return f"post-processing chosen on renders{' ' + when if when else ''}"
+
+
 def score_model(model: Path, width: int, frames: list[tuple[str, np.ndarray, np.ndarray]]) -> list[dict[str, Any]]:
     per: list[dict[str, Any]] = []
     for fid, rgb, true in frames:
@@ -91,10 +103,31 @@ def score_model(model: Path, width: int, frames: list[tuple[str, np.ndarray, np.
     return per
 
 
+#: fine-tune recipes measured leave-one-frame-out (``--finetune-variants``): name -> keyword arguments of
+#: :func:`torm.segmentation.training.finetune.finetune` (``torm train-segmenter --finetune`` options)
+#: (``steps`` in a recipe overrides ``--finetune-loo STEPS``). "plain" is the recipe before rehearsal existed.
+FT_VARIANTS: dict[str, dict[str, Any]] = {
+    # every layer, lr 2.5e-4, windows anywhere, selected on object IoU of the training frames, no rehearsal
+    "plain": {"steps": 80, "rehearsal_shards": 0, "fg_crop_bias": 0.0, "select_on": "object_iou"},
+    "lr1e-4": {"lr": 1e-4, "rehearsal_shards": 0, "fg_crop_bias": 0.0, "select_on": "object_iou"},
+    "decoder": {"freeze": "encoder", "rehearsal_shards": 0, "fg_crop_bias": 0.0, "select_on": "object_iou"},
+    # half of every batch from 64 renders of the base model's own recipe, windows on objects, union-IoU selection
+    "rehearsal": {"rehearsal_shards": 4, "fg_crop_bias": 0.5, "select_on": "fg_iou"},
+    # and L2-SP towards the base weights (alpha 0.1, Li et al. 2018)
+    "rehearsal+l2sp": {"rehearsal_shards": 4, "fg_crop_bias": 0.5, "select_on": "fg_iou", "anchor_weight": 0.1},
+}
+
+
 def finetune_loo(model: Path, steps: int, data: Path, frames: list[tuple[str, np.ndarray, np.ndarray]],
-                 work: Path) -> list[dict[str, Any]]:
-    """Leave one frame out: fine-tune ``model`` on the other frames, score the held-out one (input width 640)."""
+                 work: Path, options: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Leave one frame out: fine-tune ``model`` on the other frames (``options``: keyword arguments of
+    :func:`finetune`), score the held-out one (input width 640)."""
     from torm.segmentation.training.finetune import finetune
+
+    options = dict(options or {})
+    steps = int(options.pop("steps", steps))
+    if options.get("rehearsal_shards"):  # one rendered rehearsal set serves every fold
+        options.setdefault("rehearsal_data", str(work.parent / "rehearsal"))
 
     per = []
     for fid, rgb, true in frames:
@@ -111,7 +144,7 @@ def finetune_loo(model: Path, steps: int, data: Path, frames: list[tuple[str, np
         out = fold / "model.onnx"
         if not out.exists():
             card = finetune(train_dir, out, base_model=model, steps=steps, work=fold / "work", threads=2, seed=0,
-                            progress=False)
+                            progress=False, **options)
             wall = card["training"]["wall_s"]
         else:
             import json
@@ -129,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default=str(CLEARGRASP))
     ap.add_argument("--finetune-loo", type=int, default=0, metavar="STEPS",
                     help="also fine-tune the first model leave-one-frame-out for STEPS steps (0 = off)")
+    ap.add_argument("--finetune-variants", default="plain",
+                    help=f"--finetune-loo: comma-separated recipes of FT_VARIANTS ({', '.join(FT_VARIANTS)})")
     ap.add_argument("--work", default=str(ROOT / "runs" / "seg_real_loo"), help="--finetune-loo: fold folders")
     args = ap.parse_args(argv)
     setup()
@@ -143,21 +178,30 @@ def main(argv: list[str] | None = None) -> int:
             per = score_model(model, width, frames)
             mean = {k: float(np.mean([p[k] for p in per])) for k in ("iou", "precision", "recall", "fp_share",
                                                                         "instances", "seconds")}
+            pp = postprocess_source(model)
             out["results"].append({"model": model_fingerprint(model), "input_width": width or 1280, "mean": mean,
-                                   "frames": per})
-            rows.append([f"`{model_fingerprint(model)}`", width or 1280, mean["iou"], mean["precision"], mean["recall"],
-                         100 * mean["fp_share"], mean["instances"], mean["seconds"],
+                                   "postprocess": pp, "frames": per})
+            rows.append([f"`{model_fingerprint(model)}` ({pp})", width or 1280, mean["iou"], mean["precision"],
+                         mean["recall"], 100 * mean["fp_share"], mean["instances"], mean["seconds"],
                          ", ".join(f"{p['frame']}: {p['iou']:.2f}" for p in per)])
+    variants = [v for v in args.finetune_variants.split(",") if v]
+    bad = [v for v in variants if v not in FT_VARIANTS]
+    if bad:
+        raise SystemExit(f"unknown --finetune-variants {bad}; valid: {', '.join(FT_VARIANTS)}")
     if args.finetune_loo:
         model = model_path(args.models.split(",")[0])
-        per = finetune_loo(model, args.finetune_loo, Path(args.data), frames, Path(args.work))
-        mean = {k: float(np.mean([p[k] for p in per])) for k in ("iou", "precision", "recall", "fp_share",
-                                                                    "instances", "seconds")}
-        tag = f"`{model_fingerprint(model)}` fine-tuned {args.finetune_loo} steps, leave one frame out"
-        out["finetune_loo"] = {"model": model_fingerprint(model), "steps": args.finetune_loo, "mean": mean,
-                               "frames": per}
-        rows.append([tag, 640, mean["iou"], mean["precision"], mean["recall"], 100 * mean["fp_share"],
-                     mean["instances"], mean["seconds"], ", ".join(f"{p['frame']}: {p['iou']:.2f}" for p in per)])
+        out["finetune_loo"] = []
+        for v in variants:
+            per = finetune_loo(model, args.finetune_loo, Path(args.data), frames, Path(args.work) / v, FT_VARIANTS[v])
+            mean = {k: float(np.mean([p[k] for p in per])) for k in ("iou", "precision", "recall", "fp_share",
+                                                                        "instances", "seconds")}
+            steps = FT_VARIANTS[v].get("steps", args.finetune_loo)
+            opts = ", ".join(f"{k}={val}" for k, val in FT_VARIANTS[v].items() if k != "steps")
+            tag = f"`{model_fingerprint(model)}` fine-tuned {steps} steps, leave one frame out: {v} ({opts})"
+            out["finetune_loo"].append({"model": model_fingerprint(model), "steps": steps, "variant": v,
+                                        "options": FT_VARIANTS[v], "mean": mean, "frames": per})
+            rows.append([tag, 640, mean["iou"], mean["precision"], mean["recall"], 100 * mean["fp_share"],
+                         mean["instances"], mean["seconds"], ", ".join(f"{p['frame']}: {p['iou']:.2f}" for p in per)])
     write_json(RESULTS / "segmentation_real.json", out)
     L = ["# Learned segmenters on real photos (ClearGrasp real D435 frames)", "", context_md(out["context"]), "",
          f"Frames {', '.join(out['frames'])} of `{Path(args.data).name}` (1280x720, Apache-2.0; the real validation "

@@ -190,10 +190,87 @@ def test_finetune_runs_exports_a_loadable_model_and_records_the_frames_it_saw(tm
     from torm.segmentation.training.finetune import finetune
 
     d = _frames_folder(tmp_path)
-    card = finetune(d, tmp_path / "ft.onnx", steps=2, threads=1, progress=False)
+    card = finetune(d, tmp_path / "ft.onnx", steps=2, threads=1, progress=False, rehearsal_shards=0)
     assert card["finetune"]["frames"][0]["image"] == "000000080-transparent-rgb-img.jpg"
     assert card["training"]["steps"] == 2 and card["validated_on"]["recorded"]["validated"] is False
     assert card["postprocess"]  # carried over from the base model's card
     seg = make_segmenter("learned", {"model": str(tmp_path / "ft.onnx"), "threads": 1})
     out = seg.segment_image(np.zeros((72, 128, 3), np.uint8))[0]
     assert out.shape == (72, 128)
+
+
+def test_freeze_encoder_trains_only_the_decoder_and_fg_crop_bias_centres_windows_on_objects(tmp_path):
+    import torch
+
+    from torm.segmentation.training.targets import targets
+    from torm.segmentation.training.train import Batcher, TrainConfig, train
+
+    with pytest.raises(ConfigError, match="valid choices"):
+        TrainConfig(freeze="decoder")
+    with pytest.raises(ConfigError, match="fg_crop_bias"):
+        TrainConfig(fg_crop_bias=1.5)
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 255, (2, 64, 128, 3), dtype=np.uint8)
+    mask = np.zeros((2, 64, 128), np.uint8)
+    mask[:, 40:48, 110:118] = 1  # one small object in a corner
+    cfg = TrainConfig(channels=(4, 8), steps=3, batch_size=2, crop=(16, 16), lr=1e-2, val_every=3, freeze="encoder")
+    torch.manual_seed(0)
+    from torm.segmentation.training.model import SegUNet
+
+    before = SegUNet(cfg.channels).state_dict()
+    train(cfg, rgb, mask, rgb, mask, tmp_path / "w", progress=False)
+    after = torch.load(tmp_path / "w" / "checkpoint.pt", weights_only=False)["model"]
+    changed = {k for k in before if not torch.equal(before[k], after[k]) and "running" not in k}
+    assert changed and all(k.startswith(("up.", "head.")) for k in changed)  # the encoder ("down.") kept its weights
+    # windows centred on the object: with bias 1 every 16x16 window holds object pixels, without it few do
+    tgt = targets(mask, 1)
+    biased = Batcher(rgb, tgt, TrainConfig(crop=(16, 16), batch_size=64, fg_crop_bias=1.0), np.random.default_rng(1))
+    plain = Batcher(rgb, tgt, TrainConfig(crop=(16, 16), batch_size=64), np.random.default_rng(1))
+    hit_b = (biased.sample()[1][:, 0].sum((1, 2)) > 0).float().mean()
+    hit_p = (plain.sample()[1][:, 0].sum((1, 2)) > 0).float().mean()
+    assert hit_b == 1.0 and hit_p < 0.3
+
+
+def test_onnx_sessions_take_the_benchmark_workers_thread_share(monkeypatch):
+    from torm.segmentation.onnx_models import session_threads
+
+    monkeypatch.delenv("TORM_THREADS", raising=False)
+    assert session_threads(0) == 0 and session_threads(3) == 3
+    monkeypatch.setenv("TORM_THREADS", "1")
+    assert session_threads(0) == 1 and session_threads(2) == 2  # an explicit count wins
+
+
+def test_rehearsal_draws_part_of_every_batch_from_the_renders(tmp_path):
+    import torch
+
+    from torm.segmentation.training import train as tr
+
+    rng = np.random.default_rng(0)
+    real = rng.integers(0, 255, (2, 48, 96, 3), dtype=np.uint8)
+    real_mask = np.zeros((2, 48, 96), np.uint8)
+    real_mask[:, 10:20, 10:20] = 1
+    old = np.full((3, 32, 64, 3), 7, np.uint8)  # renders: another size, one flat grey
+    old_mask = np.zeros((3, 32, 64), np.uint8)
+    with pytest.raises(ConfigError, match="rehearsal_fraction"):
+        tr.TrainConfig(rehearsal_fraction=1.0)
+    cfg = tr.TrainConfig(channels=(4, 8), steps=1, batch_size=4, crop=(48, 64), val_every=1, rehearsal_fraction=0.5)
+    with pytest.raises(ConfigError, match="no rehearsal views"):
+        tr.train(cfg, real, real_mask, real, real_mask, tmp_path / "a", progress=False)
+    seen = []
+    real_fn = tr.loss_fn
+
+    def spy(logits, tgt, c):
+        seen.append(logits.shape)
+        return real_fn(logits, tgt, c)
+
+    orig_norm = tr.normalise
+    inputs = []
+    tr.loss_fn = spy
+    tr.normalise = lambda x: inputs.append(x.clone()) or orig_norm(x)
+    try:
+        tr.train(cfg, real, real_mask, real, real_mask, tmp_path / "b", progress=False, rehearsal=(old, old_mask))
+    finally:
+        tr.loss_fn, tr.normalise = real_fn, orig_norm
+    assert seen[0][0] == 4 and tuple(seen[0][2:]) == (32, 64)  # windows shrink to fit the smaller renders
+    flat = torch.stack([(x.amax((0, 1, 2)) - x.amin((0, 1, 2))) for x in inputs[0]])
+    assert int((flat < 60).sum()) == 2  # two of four samples are the flat renders (sensor noise aside)

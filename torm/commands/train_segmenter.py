@@ -9,8 +9,10 @@ Examples (the shipped recipe into runs/seg_train/; PBR renders overwriting the s
 
 ``--finetune DIR`` adapts a trained model (``--init``, default the shipped one) to a handful of your own labelled
 frames (``DIR/images/<name>.jpg`` + ``DIR/masks/<name>.png``, or ``<name>.jpg`` + ``<name>-mask.png``; masks from
-any tool, 0 = background) in ``--steps`` steps (default 300, about 4 minutes on 2 cores) and writes the ONNX file
-and its card (which frames it saw); use it with ``--segmenter learned --set model=runs/my_seg.onnx``.
+any tool, 0 = background) in ``--steps`` steps (default 300, about 4 minutes on 2 cores, plus about 1.5 minutes to
+render the rehearsal views once: ``--rehearsal-shards``, renders of the base model's own recipe that fill half of
+every batch) and writes the ONNX file and its card (which frames it saw); use it with ``--segmenter learned --set
+model=runs/my_seg.onnx``.
 
 Stages resume: rendered shards (``--data``, default ``runs/seg_data/<renderer>``) are kept, training continues
 from ``--work``'s checkpoint. Writes the ONNX file and its model card (same name, ``.json``: training config,
@@ -49,6 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="few-shot: fine-tune --init on the labelled frames in DIR (no rendering)")
     p.add_argument("--init", default="", help="--finetune: the model to start from (default: the shipped one)")
     p.add_argument("--steps", type=count_arg, default=300, help="--finetune: training steps (default 300)")
+    p.add_argument("--rehearsal-shards", type=int, default=4,
+                   help="--finetune: shards (16 views each) of the base model's own recipe rendered and mixed into "
+                        "half of every batch so your frames do not erase what it knew (default 4; 0 = none)")
     add_overrides(p, example="train.steps=20", target="train-segmenter")
     p.set_defaults(func=run)
 
@@ -82,7 +87,10 @@ def _finetune(args: argparse.Namespace) -> int:
     from torm.segmentation.training.finetune import finetune
 
     out = Path(args.out) if args.out else Path(args.work) / "learned_seg_finetuned.onnx"
-    card = finetune(args.finetune, out, base_model=args.init, steps=args.steps, threads=args.threads or 1)
+    if args.rehearsal_shards < 0:
+        raise SystemExit(f"--rehearsal-shards {args.rehearsal_shards} must be >= 0 (0 = no rehearsal)")
+    card = finetune(args.finetune, out, base_model=args.init, steps=args.steps, threads=args.threads or 1,
+                    rehearsal_shards=args.rehearsal_shards, rehearsal_data=Path(args.work) / "rehearsal")
     print_json({"out": str(out), "card": str(out.with_suffix(".json")), "frames": len(card["finetune"]["frames"]),
                 "training": card["training"], "use": f"--segmenter learned --set model={out}"})
     return 0

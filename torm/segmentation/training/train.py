@@ -47,6 +47,8 @@ log = logging.getLogger(__name__)
 SELECT_ON = ("fg_iou", "object_iou")
 #: data splits a run can select its checkpoint on (see :mod:`torm.segmentation.training.dataset`)
 VAL_SPLITS = ("val", "val_rig")
+#: parts of the network a run can hold fixed (``TrainConfig.freeze``)
+FREEZE = ("", "encoder")
 
 
 @dataclass(frozen=True)
@@ -80,6 +82,12 @@ class TrainConfig:
     # reference mode: the network also reads the empty workspace's view (6 input channels; shards' .ref.npz)
     reference: bool = False
     reference_jitter_px: float = 1.0  # registration error of the reference: shift up to this (px), rotation 0.3 deg
+    # few-shot fine-tuning (training/finetune.py)
+    freeze: str = ""  # "" = train every layer; "encoder" = only the decoder and heads (the encoder keeps its weights)
+    fg_crop_bias: float = 0.0  # probability that a training window is centred on a random foreground pixel
+    rehearsal_fraction: float = 0.0  # share of each batch drawn from the rehearsal set (renders of the base recipe)
+    anchor_weight: float = 0.0  # L2-SP: weight of sum((w - w_init)^2) over trained weights (keeps a fine-tune near
+    # the model it started from; Li et al. 2018, "Explicit inductive bias for transfer learning with CNNs")
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
@@ -99,6 +107,14 @@ class TrainConfig:
             raise ConfigError(f"train.zoom_range {self.zoom_range} must be (lo, hi) with 1 <= lo <= hi <= 4")
         if not 0.0 <= self.sensor_effects <= 1.0:
             raise ConfigError(f"train.sensor_effects {self.sensor_effects} must be in [0, 1]")
+        if self.freeze not in FREEZE:
+            raise ConfigError(f"train.freeze {self.freeze!r}; valid choices: {', '.join(repr(f) for f in FREEZE)}")
+        if not 0.0 <= self.rehearsal_fraction < 1.0:
+            raise ConfigError(f"train.rehearsal_fraction {self.rehearsal_fraction} must be in [0, 1)")
+        if self.anchor_weight < 0:
+            raise ConfigError(f"train.anchor_weight {self.anchor_weight} must be >= 0")
+        if not 0.0 <= self.fg_crop_bias <= 1.0:
+            raise ConfigError(f"train.fg_crop_bias {self.fg_crop_bias} must be in [0, 1]")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -127,6 +143,12 @@ class Batcher:
         xs, ys = [], []
         for i in r.integers(0, n, c.batch_size):
             y0, x0 = int(r.integers(0, H - ch + 1)), int(r.integers(0, W - cw + 1))
+            if c.fg_crop_bias > 0 and r.random() < c.fg_crop_bias:  # a window around a random object pixel
+                fy, fx = np.nonzero(self.tgt[i, 0])
+                if len(fy):
+                    k = int(r.integers(0, len(fy)))
+                    y0 = int(np.clip(fy[k] - ch // 2 + r.integers(-ch // 4, ch // 4 + 1), 0, H - ch))
+                    x0 = int(np.clip(fx[k] - cw // 2 + r.integers(-cw // 4, cw // 4 + 1), 0, W - cw))
             img = self.rgb[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
             if self.ref is not None:  # the reference view, misregistered a little, side by side in the channels
                 ref = jitter(self.ref[i].astype(np.float32), c.reference_jitter_px, r)[y0:y0 + ch, x0:x0 + cw]
@@ -256,9 +278,12 @@ def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 32
 
 def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_rgb: np.ndarray,
           val_mask: np.ndarray, workdir: Path, progress: bool = True, train_ref: np.ndarray | None = None,
-          val_ref: np.ndarray | None = None) -> dict[str, Any]:
+          val_ref: np.ndarray | None = None, rehearsal: tuple[np.ndarray, np.ndarray] | None = None
+          ) -> dict[str, Any]:
     """Train (resuming from ``workdir/checkpoint.pt``); the best-validation weights go to ``workdir/best.pt``.
-    ``train_ref`` / ``val_ref``: the reference views (reference mode, ``cfg.reference``).
+    ``train_ref`` / ``val_ref``: the reference views (reference mode, ``cfg.reference``). ``rehearsal``: (rgb
+    (M, h, w, 3) uint8, instance mask (M, h, w)) views that ``cfg.rehearsal_fraction`` of every batch comes from
+    (a fine-tune's renders of its base model's recipe: the few frames it adapts to do not erase what it knew).
 
     Returns a summary: steps, wall time, best validation foreground IoU and its step, the loss history.
     """
@@ -270,7 +295,11 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     workdir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)  # weight init only; data order comes from the explicit Generator below
     net = SegUNet(cfg.channels, cfg.centre_head, 6 if cfg.reference else 3)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if cfg.freeze == "encoder":
+        for p in net.down.parameters():
+            p.requires_grad_(False)
+    opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=cfg.lr,
+                            weight_decay=cfg.weight_decay)
     rng = np.random.default_rng(cfg.seed)
     state: dict[str, Any] = {"step": 0, "best_iou": -1.0, "best_step": 0, "history": [], "wall_s": 0.0}
     ck = workdir / "checkpoint.pt"
@@ -295,6 +324,13 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         else:
             _load_pt(net, init)
         log.info("initialised from %s", init)
+    anchor: list[tuple[torch.Tensor, torch.Tensor]] = []
+    if cfg.anchor_weight:  # the weights the run started from, kept beside its checkpoint for a resume
+        ap = workdir / "anchor.pt"
+        if not ap.exists():
+            torch.save({k: v.detach().clone() for k, v in net.named_parameters()}, ap)
+        start = torch.load(ap, map_location="cpu", weights_only=True)
+        anchor = [(p, start[k]) for k, p in net.named_parameters() if p.requires_grad]
     tgt = targets(train_mask, cfg.boundary_radius_px)
     centre = None
     if cfg.centre_head:  # heatmap + offsets (px) as float16: 3 x 2 bytes per pixel
@@ -302,7 +338,23 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         for i, m in enumerate(train_mask):
             heat, off = centre_targets(m, cfg.centre_sigma_px)
             centre[i, 0], centre[i, 1:] = heat, off
-    batcher = Batcher(train_rgb, tgt, cfg, rng, centre, train_ref if cfg.reference else None)
+    if cfg.rehearsal_fraction and rehearsal is None:
+        raise ConfigError("train.rehearsal_fraction is set but no rehearsal views were given")
+    n_old = int(round(cfg.rehearsal_fraction * cfg.batch_size)) if rehearsal is not None else 0
+    batcher = Batcher(train_rgb, tgt, dataclasses.replace(cfg, batch_size=cfg.batch_size - n_old) if n_old else cfg,
+                      rng, centre, train_ref if cfg.reference else None)
+    old_batcher = None
+    if n_old:
+        r_rgb, r_mask = rehearsal
+        r_centre = np.stack([np.concatenate([h[None], o]) for h, o in
+                             (centre_targets(m, cfg.centre_sigma_px) for m in r_mask)]).astype(np.float16) \
+            if cfg.centre_head else None
+        crop = tuple(min(c, d - d % 16) for c, d in zip(cfg.crop, (min(train_rgb.shape[1], r_rgb.shape[1]),
+                                                                    min(train_rgb.shape[2], r_rgb.shape[2])),
+                                                           strict=True))
+        batcher.cfg = dataclasses.replace(batcher.cfg, crop=crop)
+        old_batcher = Batcher(r_rgb, targets(r_mask, cfg.boundary_radius_px),
+                              dataclasses.replace(cfg, batch_size=n_old, crop=crop), rng, r_centre)
     if cfg.reference and val_ref is None:
         raise ConfigError("train.reference is set but the validation split has no reference passes")
 
@@ -317,6 +369,8 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     running: list[float] = []
     while state["step"] < cfg.steps:
         net.train()
+        if cfg.freeze == "encoder":  # its BatchNorm statistics stay too
+            net.down.eval()
         if cfg.freeze_bn:
             for m in net.modules():
                 if isinstance(m, torch.nn.BatchNorm2d):
@@ -325,7 +379,14 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         for g in opt.param_groups:
             g["lr"] = lr
         x, y = batcher.sample()
+        if old_batcher is not None:
+            xo, yo = old_batcher.sample()
+            x, y = torch.cat([x, xo]), torch.cat([y, yo])
         loss, parts = loss_fn(net(normalise(x)), y, cfg)
+        if anchor:
+            drift = sum(((p - p0) ** 2).sum() for p, p0 in anchor)
+            loss = loss + cfg.anchor_weight * drift
+            parts["anchor_drift"] = float(drift)
         opt.zero_grad()
         loss.backward()
         opt.step()
