@@ -331,30 +331,20 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
             torch.save({k: v.detach().clone() for k, v in net.named_parameters()}, ap)
         start = torch.load(ap, map_location="cpu", weights_only=True)
         anchor = [(p, start[k]) for k, p in net.named_parameters() if p.requires_grad]
-    tgt = targets(train_mask, cfg.boundary_radius_px)
-    centre = None
-    if cfg.centre_head:  # heatmap + offsets (px) as float16: 3 x 2 bytes per pixel
-        centre = np.empty((len(train_mask), 3, *train_mask.shape[1:]), np.float16)
-        for i, m in enumerate(train_mask):
-            heat, off = centre_targets(m, cfg.centre_sigma_px)
-            centre[i, 0], centre[i, 1:] = heat, off
     if cfg.rehearsal_fraction and rehearsal is None:
         raise ConfigError("train.rehearsal_fraction is set but no rehearsal views were given")
     n_old = int(round(cfg.rehearsal_fraction * cfg.batch_size)) if rehearsal is not None else 0
-    batcher = Batcher(train_rgb, tgt, dataclasses.replace(cfg, batch_size=cfg.batch_size - n_old) if n_old else cfg,
-                      rng, centre, train_ref if cfg.reference else None)
-    old_batcher = None
-    if n_old:
-        r_rgb, r_mask = rehearsal
-        r_centre = np.stack([np.concatenate([h[None], o]) for h, o in
-                             (centre_targets(m, cfg.centre_sigma_px) for m in r_mask)]).astype(np.float16) \
-            if cfg.centre_head else None
-        crop = tuple(min(c, d - d % 16) for c, d in zip(cfg.crop, (min(train_rgb.shape[1], r_rgb.shape[1]),
-                                                                    min(train_rgb.shape[2], r_rgb.shape[2])),
-                                                           strict=True))
-        batcher.cfg = dataclasses.replace(batcher.cfg, crop=crop)
-        old_batcher = Batcher(r_rgb, targets(r_mask, cfg.boundary_radius_px),
-                              dataclasses.replace(cfg, batch_size=n_old, crop=crop), rng, r_centre)
+    crop = cfg.crop
+    if n_old:  # one window size for both sources: the smaller frames bound it
+        h = min(train_rgb.shape[1], rehearsal[0].shape[1])
+        w = min(train_rgb.shape[2], rehearsal[0].shape[2])
+        crop = (min(cfg.crop[0], h - h % 16), min(cfg.crop[1], w - w % 16))
+    batcher = Batcher(train_rgb, targets(train_mask, cfg.boundary_radius_px),
+                      dataclasses.replace(cfg, batch_size=cfg.batch_size - n_old, crop=crop), rng,
+                      _centre_maps(train_mask, cfg), train_ref if cfg.reference else None)
+    old_batcher = Batcher(rehearsal[0], targets(rehearsal[1], cfg.boundary_radius_px),
+                          dataclasses.replace(cfg, batch_size=n_old, crop=crop), rng,
+                          _centre_maps(rehearsal[1], cfg)) if n_old else None
     if cfg.reference and val_ref is None:
         raise ConfigError("train.reference is set but the validation split has no reference passes")
 
@@ -413,6 +403,18 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     bar.close()
     return {"steps": state["step"], "wall_s": state["wall_s"], f"best_val_{cfg.select_on}": state["best_iou"],
             "best_step": state["best_step"], "history": state["history"]}
+
+
+def _centre_maps(mask_nxhxw: np.ndarray, cfg: TrainConfig) -> np.ndarray | None:
+    """(N, 3, H, W) float16 centre heatmap and offsets (px) of every instance mask (3 x 2 bytes per pixel), or None
+    without the centre head."""
+    if not cfg.centre_head:
+        return None
+    centre = np.empty((len(mask_nxhxw), 3, *mask_nxhxw.shape[1:]), np.float16)
+    for i, m in enumerate(mask_nxhxw):
+        heat, off = centre_targets(m, cfg.centre_sigma_px)
+        centre[i, 0], centre[i, 1:] = heat, off
+    return centre
 
 
 def same_config(saved: dict[str, Any] | None, cfg: TrainConfig) -> bool:
