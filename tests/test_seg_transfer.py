@@ -190,6 +190,8 @@ def test_finetune_runs_exports_a_loadable_model_and_records_the_frames_it_saw(tm
     from torm.segmentation.training.finetune import finetune
 
     d = _frames_folder(tmp_path)
+    with pytest.raises(ConfigError, match="rehearsal_shards = -1 must be >= 0"):
+        finetune(d, tmp_path / "bad.onnx", steps=2, rehearsal_shards=-1, progress=False)
     card = finetune(d, tmp_path / "ft.onnx", steps=2, threads=1, progress=False, rehearsal_shards=0)
     assert card["finetune"]["frames"][0]["image"] == "000000080-transparent-rgb-img.jpg"
     assert card["training"]["steps"] == 2 and card["validated_on"]["recorded"]["validated"] is False

@@ -147,6 +147,8 @@ def finetune(folder: str | Path, out: str | Path, base_model: str | Path = "", s
     base_card = json.loads(card_p.read_text())
     if steps < 1:
         raise ConfigError(f"fine-tune steps = {steps} must be >= 1")
+    if rehearsal_shards < 0:
+        raise ConfigError(f"rehearsal_shards = {rehearsal_shards} must be >= 0 (0 = no rehearsal)")
     out = Path(out)
     work = Path(work) if work else out.with_suffix(".work")
     input_width = int(input_width or card_input_width(base))
