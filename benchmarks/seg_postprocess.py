@@ -128,8 +128,7 @@ def card_splits(a: argparse.Namespace, seg: Any, splits: tuple[str, ...]) -> tup
         recipe = dataclasses.replace(recipe, renderer="mujoco", shards={s: 1 for s in splits}, scenes_per_shard=1,
                                      test_views=4)
         data_dir = a.data or (a.cache or bc.ROOT / "runs") / "seg_data_quick_mujoco"
-    missing = {s: int(getattr(a, "test_shards", 1)) for s in splits if s.startswith("test") and not
-               recipe.shards.get(s)}
+    missing = {s: a.test_shards for s in splits if s.startswith("test") and not recipe.shards.get(s)}
     if missing:
         recipe = dataclasses.replace(recipe, shards={**recipe.shards, **missing})
     generate(recipe, data_dir, splits=splits)

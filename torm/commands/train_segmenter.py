@@ -87,8 +87,6 @@ def _finetune(args: argparse.Namespace) -> int:
     from torm.segmentation.training.finetune import finetune
 
     out = Path(args.out) if args.out else Path(args.work) / "learned_seg_finetuned.onnx"
-    if args.rehearsal_shards < 0:
-        raise SystemExit(f"--rehearsal-shards {args.rehearsal_shards} must be >= 0 (0 = no rehearsal)")
     card = finetune(args.finetune, out, base_model=args.init, steps=args.steps, threads=args.threads or 1,
                     rehearsal_shards=args.rehearsal_shards, rehearsal_data=Path(args.work) / "rehearsal")
     print_json({"out": str(out), "card": str(out.with_suffix(".json")), "frames": len(card["finetune"]["frames"]),

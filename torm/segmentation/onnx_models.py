@@ -100,14 +100,17 @@ def _bind(path: str, what: str, specs: tuple[TensorSpec, ...], actual: list[Any]
 
 def session_threads(threads: int = 0) -> int:
     """onnxruntime intra-op threads for ``threads`` (0 = automatic): ``threads`` when > 0, else ``TORM_THREADS``
-    when set (a benchmark worker's share of the cores), else 0 (onnxruntime's own default: every physical core).
+    when set (a benchmark worker's share of the cores, :func:`torm.runtime.free_cores`), else 0 (onnxruntime's own
+    default: every physical core).
 
-    Without this a benchmark's two workers each ran onnxruntime on both cores of a 2-core machine, its idle threads
-    spinning on the other worker's core: segmentation inside a trial took 9.3 s against 4.9 s alone (issue 43)."""
+    Without this a benchmark's two workers each ran onnxruntime on both cores of a 2-core machine, idle threads
+    spinning on the other worker's core: 4.6 s of segmentation per trial against 2.7 s with it
+    (`benchmarks/results/throughput_realistic_v4fast{,_ort2}.md`, 2026-12-06)."""
+    from torm.runtime import free_cores
+
     if threads > 0:
         return int(threads)
-    env = os.environ.get("TORM_THREADS")
-    return max(1, int(env)) if env else 0
+    return free_cores() if os.environ.get("TORM_THREADS") else 0
 
 
 def open_session(
