@@ -41,13 +41,14 @@ TEST_STREAM = StreamSettings(horizon_s=0.6)
 
 
 def make_arm(port: int, armed: bool = True, dry_run: bool = False, watchdog_s: float = 10.0,
-             log: CommandLog | None = None, speed_scale: float = 0.25) -> InovoArm:
+             log: CommandLog | None = None, speed_scale: float = 0.25,
+             stream: StreamSettings = TEST_STREAM) -> InovoArm:
     """The adapter against the fake server. The watchdog is generous (10 s) except in the test about it: the
     fake's joint-state thread can starve for over a second on a loaded 2-core machine."""
     kin = MujocoKinematics(RCFG.mjcf, JOINTS, RCFG.arm.tcp_site, RCFG.arm.flange_site)
     return InovoArm("127.0.0.1", port, JOINTS, kin, armed=armed, dry_run=dry_run, watchdog_s=watchdog_s,
                     connect_timeout_s=5.0, result_timeout_s=2.0, command_log=log or CommandLog(None),
-                    accel_limits=speed_scale * np.asarray(RCFG.arm.acceleration_limits), stream=TEST_STREAM)
+                    accel_limits=speed_scale * np.asarray(RCFG.arm.acceleration_limits), stream=stream)
 
 
 def _small_move(q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -314,9 +315,10 @@ class _FakeCamera:
 def _backend(server, **hw):
     from torm.hardware.backend import RealBackend
 
+    hw.setdefault("stream", TEST_STREAM)
     cfg = HardwareConfig(host="127.0.0.1", port=server.port, armed=True, command_log=None,
                          gripper=GripperSettings(activate=False), **hw)
-    arm = make_arm(server.port, speed_scale=cfg.speed_scale)
+    arm = make_arm(server.port, speed_scale=cfg.speed_scale, stream=cfg.stream)
     return RealBackend(RCFG, cfg, arm=arm, gripper=_NullGripper()), arm
 
 
@@ -383,8 +385,10 @@ def test_backend_close_sends_cancel_then_disable(server):
 def test_capture_moves_the_wrist_camera_over_the_hemisphere(server):
     T_flange_cam = np.eye(4)
     T_flange_cam[:3, 3] = [0.0, 0.06, 0.03]
-    # fast moves keep the test short (0.85 x the limits; gentle braking tails keep the config valid)
-    backend, arm = _backend(server, speed_scale=0.85, stream=StreamSettings(brake_fraction=0.1),
+    # fast moves keep the test short (0.85 x the limits; gentle braking tails keep the config valid); three
+    # moves of ~15 chunks each: a 1.5 s horizon so that a stall of the loaded CI machine (0.6 s seen) does not
+    # abandon the motion (what a stall does is the subject of test_a_stream_that_falls_behind_brakes_to_a_stop)
+    backend, arm = _backend(server, speed_scale=0.85, stream=StreamSettings(horizon_s=1.5, brake_fraction=0.1),
                             capture=RealCaptureSettings(radius=0.5, return_home=False, settle_s=0.0))
     backend._camera = _FakeCamera(arm, T_flange_cam)
     try:
