@@ -104,6 +104,7 @@ class DataRecipe:
     lighting_fraction: float = 0.0  # share of PBR scenes with the room / panel light scaled (dim, key, back-lit)
     label_opaque: bool = True  # False: opaque objects are background in the masks (only glass is labelled)
     renderer_weights: dict[str, float] = dataclasses.field(default_factory=dict)  # per-shard renderer draw
+    distractor_mix: str = "v4"  # kinds and materials of the look-alikes (training/clutter.py MIXES; v5: "print")
 
     def __post_init__(self) -> None:
         from torm.segmentation.training.render import RENDERERS, SHARD_RENDERERS
@@ -118,6 +119,10 @@ class DataRecipe:
         if not all(0 <= f <= 1 for f in (self.distractor_fraction, self.room_fraction, self.lighting_fraction)):
             raise ConfigError("data.distractor_fraction, data.room_fraction and data.lighting_fraction must be in "
                               "[0, 1]")
+        from torm.segmentation.training.clutter import MIXES
+
+        if self.distractor_mix not in MIXES:
+            raise ConfigError(f"data.distractor_mix {self.distractor_mix!r}; valid choices: {', '.join(MIXES)}")
         dlo, dhi = self.distractors_per_scene
         if not 0 <= dlo <= dhi <= 20:
             raise ConfigError("data.distractors_per_scene must be (lo, hi) with 0 <= lo <= hi <= 20")

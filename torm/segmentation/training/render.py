@@ -42,6 +42,7 @@ class SceneLook:
     clutter_seed: int = 0
     reference: bool = False  # the empty-workspace pass: independent render noise, some distractors removed
     drop_distractors: float = 0.0  # reference pass: probability that a distractor is not there
+    mix: str = "v4"  # distractor kinds and materials (training/clutter.py MIXES)
 
     @classmethod
     def draw(cls, recipe: Any, rng: np.random.Generator) -> SceneLook:
@@ -52,7 +53,7 @@ class SceneLook:
         env, area = 1.0, 1.0
         if rng.random() < recipe.lighting_fraction:  # dim room + strong panel, bright room + no panel, ...
             env, area = float(np.exp(rng.uniform(np.log(0.2), np.log(2.0)))), float(rng.choice([0.0, 0.3, 1.0, 4.0]))
-        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)))
+        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)), mix=getattr(recipe, "distractor_mix", "v4"))
 
     @property
     def plain(self) -> bool:
@@ -143,7 +144,7 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
             # hidden objects (a reference pass) still shape the clutter: the same draw as the scene's
             desc = describe_world(world, centre=r.centre, groups=(*RENDERED_GROUPS, HIDDEN_GROUP))
             extra, drawn = clutter_entries(desc, np.random.default_rng(look.clutter_seed), look.n_distractors,
-                                           look.room, mi, cache_root() / "meshes")
+                                           look.room, mi, cache_root() / "meshes", look.mix)
             if look.reference and look.drop_distractors > 0:
                 drop = np.random.default_rng([look.clutter_seed, 7])
                 for k in [k for k in extra if k.startswith("distractor_")]:
