@@ -165,7 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--finetune-variants", default="plain",
                     help=f"--finetune-loo: comma-separated recipes of FT_VARIANTS ({', '.join(FT_VARIANTS)})")
     ap.add_argument("--work", default=str(ROOT / "runs" / "seg_real_loo"), help="--finetune-loo: fold folders")
+    ap.add_argument("--tag", default="", help="write segmentation_real_<tag>.{json,md} (an experiment beside the "
+                                               "main table) instead of segmentation_real.{json,md}")
+    ap.add_argument("--note", default="", help="a paragraph for the Markdown file: what the experiment is")
     args = ap.parse_args(argv)
+    if args.tag and not args.tag.replace("_", "").replace("-", "").isalnum():
+        raise SystemExit(f"--tag {args.tag!r}: letters, digits, '-' and '_' only (it names the result files)")
+    stem = f"segmentation_real_{args.tag}" if args.tag else "segmentation_real"
     setup()
     from torm.segmentation.learned import model_fingerprint
 
@@ -202,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                                         "options": FT_VARIANTS[v], "mean": mean, "frames": per})
             rows.append([tag, 640, mean["iou"], mean["precision"], mean["recall"], 100 * mean["fp_share"],
                          mean["instances"], mean["seconds"], ", ".join(f"{p['frame']}: {p['iou']:.2f}" for p in per)])
-    write_json(RESULTS / "segmentation_real.json", out)
+    write_json(RESULTS / f"{stem}.json", out)
     L = ["# Learned segmenters on real photos (ClearGrasp real D435 frames)", "", context_md(out["context"]), "",
          f"Frames {', '.join(out['frames'])} of `{Path(args.data).name}` (1280x720, Apache-2.0; the real validation "
          "set: no model was trained on them). Union of the predicted instances against the binary mask of the "
@@ -215,8 +221,8 @@ def main(argv: list[str] | None = None) -> int:
          "but the fine-tuned rows was trained on renders only (model cards: `*.json` beside each file); targets "
          "for a segmenter that transfers (issue 43): "
          "IoU >= 0.75 and precision >= 0.80 on these frames without fine-tuning, >= 0.85 fine-tuned leave one "
-         "frame out.", ""]
-    (RESULTS / "segmentation_real.md").write_text("\n".join(L) + "\n")
+         "frame out.", ""] + ([args.note, ""] if args.note else [])
+    (RESULTS / f"{stem}.md").write_text("\n".join(L) + "\n")
     print("\n".join(str(r[:6]) for r in rows))
     return 0
 
