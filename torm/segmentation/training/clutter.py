@@ -42,6 +42,7 @@ Everything is drawn from ``rng`` (``numpy.random.Generator``); the same generato
 from __future__ import annotations
 
 import colorsys
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -241,7 +242,7 @@ def _uv_mesh_file(vertices_vx3: np.ndarray, faces_fx3: np.ndarray, cylindrical: 
               f"element vertex {len(v)}\n" + "".join(f"property float {k}\n" for k in vert.dtype.names)
               + f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".tmp{np.random.default_rng().integers(1 << 30)}")
+    tmp = path.with_suffix(f".tmp{os.getpid()}")  # shard workers may write the same mesh at once
     tmp.write_bytes(header.encode("ascii") + body)
     tmp.replace(path)
     return path
