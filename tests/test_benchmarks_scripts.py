@@ -220,3 +220,28 @@ def test_grasping_names_one_column_per_learned_model(tmp_path):
     text = (tmp_path / "g.md").read_text()
     assert "segmenter learned model v4fast | TORM-fast (consensus + narrow-band projective hull), segmenter learned " \
            "model v4 |" in text and "| LAB1 | 10% | a, b, c, d | 3/4 (0/1) | 3/4 (0/1) |" in text
+
+
+def test_seg_compare_scores_every_model_on_the_same_views(tmp_path: Path) -> None:
+    from torm.segmentation.training.dataset import DataRecipe, generate
+
+    data = tmp_path / "data"
+    generate(DataRecipe(renderer="mujoco", shards={"test_layouts": 1, "test_fixtures": 1}, scenes_per_shard=1,
+                        test_views=4), data, splits=("test_layouts", "test_fixtures"))
+    env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "seg_compare.py"), "--data", str(data), "--models", "v3,v4",
+           "--tag", "t", "--threads", "1", "--out", str(tmp_path / "out")]
+    res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    doc = json.loads((tmp_path / "out" / "seg_compare_t.json").read_text())
+    assert [m["model"].split("@")[0] for m in doc["models"]] == ["learned_seg.onnx", "learned_seg_v4.onnx"]
+    for m in doc["models"]:
+        assert set(m["splits"]) == {"test_layouts", "test_fixtures"}  # test_shapes was not rendered: skipped
+        for r in m["splits"].values():
+            assert r["views"] == 4 and 0.0 <= r["silhouette_iou"] <= 1.0 and 0.0 <= r["object_iou"] <= 1.0
+    assert doc["models"][1]["postprocess"]["flip_tta"] is True  # each model reads with its own card's setting
+    assert "| `learned_seg_v4.onnx@" in (tmp_path / "out" / "seg_compare_t.md").read_text()
+    (tmp_path / "empty").mkdir()
+    res = subprocess.run([*cmd[:3], str(tmp_path / "empty"), *cmd[4:]], cwd=ROOT, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode != 0 and "no test split" in res.stderr
