@@ -77,7 +77,7 @@ def test_uv_mesh_file_is_a_ply_mitsuba_reads_with_texture_coordinates(tmp_path):
     from sim.render.mitsuba_env import load_mitsuba
     from torm.segmentation.training.clutter import _uv_mesh_file, distractor_mesh
 
-    mi, _ = load_mitsuba("scalar_rgb", threads=1)
+    mi, _ = load_mitsuba()  # the process's variant (it is process-global): any reads a PLY
 
     v, f = distractor_mesh("mug", np.random.default_rng(0), [])
     path = _uv_mesh_file(v, f, True, tmp_path)
