@@ -40,3 +40,16 @@ def camera(eye=(0.25, -0.2, 0.25), target=(0.02, 0.0, 0.02), width=64, height=48
     c = c if c is not None else (width / 2, height / 2)
     K = np.array([[f, 0, c[0]], [0, f, c[1]], [0, 0, 1.0]])
     return RenderCamera(K, look_at_cv(np.asarray(eye, float), np.asarray(target, float)), width, height)
+
+
+def one_glass_cylinder_view(height_m: float) -> tuple:
+    """(world, T_world_cam (4, 4), K (3, 3)) of an 80x60 camera 0.45 m from a lone glass cylinder, ``height_m``
+    above its centre: the tiny PBR scenes of the look-alike tests."""
+    from sim.scenes.scenario import Scenario
+    from sim.world import build_world
+
+    world = build_world(Scenario(name="t", objects=("cylinder",), spacing="moderate"), 2, robot=None)
+    c = world.object_pose(1)[:3, 3]
+    T = look_at_cv(c + np.array([0.45, 0.0, height_m]), c + np.array([0.0, 0.0, 0.04]))
+    return world, T, np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+

@@ -223,12 +223,14 @@ def test_grasping_names_one_column_per_learned_model(tmp_path):
 
 
 def test_seg_compare_scores_every_model_on_the_same_views(tmp_path: Path) -> None:
-    from torm.segmentation.training.dataset import DataRecipe, generate
-
     data = tmp_path / "data"
-    generate(DataRecipe(renderer="mujoco", shards={"test_layouts": 1, "test_fixtures": 1}, scenes_per_shard=1,
-                        test_views=4), data, splits=("test_layouts", "test_fixtures"))
     env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
+    # rendered in a subprocess: generating registers procedural shapes in this process's object library
+    make = ("from torm.segmentation.training.dataset import DataRecipe, generate; "
+            "generate(DataRecipe(renderer='mujoco', shards={'test_layouts': 1, 'test_fixtures': 1}, "
+            f"scenes_per_shard=1, test_views=4), {str(data)!r}, splits=('test_layouts', 'test_fixtures'))")
+    res = subprocess.run([sys.executable, "-c", make], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
     cmd = [sys.executable, str(ROOT / "benchmarks" / "seg_compare.py"), "--data", str(data), "--models", "v3,v4",
            "--tag", "t", "--threads", "1", "--out", str(tmp_path / "out")]
     res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)

@@ -91,15 +91,10 @@ def test_uv_mesh_file_is_a_ply_mitsuba_reads_with_texture_coordinates(tmp_path):
 
 def test_a_print_mix_scene_shows_prints_and_labels_only_glass():
     pytest.importorskip("mitsuba")
-    from sim.scenes.scenario import Scenario
-    from sim.world import build_world
-    from torm.geometry import look_at_cv
+    from tests.render_helpers import one_glass_cylinder_view
     from torm.segmentation.training.render import SceneLook, render_pbr
 
-    world = build_world(Scenario(name="t", objects=("cylinder",), spacing="moderate"), 2, robot=None)
-    c = world.object_pose(1)[:3, 3]
-    T = look_at_cv(c + np.array([0.45, 0.0, 0.25]), c + np.array([0.0, 0.0, 0.04]))
-    K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+    world, T, K = one_glass_cylinder_view(0.25)
     _, mask_p, _ = render_pbr(world, T[None], K[None], 80, 60, np.random.default_rng(0), spp=4)
     rgb, mask, info = render_pbr(world, T[None], K[None], 80, 60, np.random.default_rng(0), spp=4,
                                  look=SceneLook(n_distractors=8, clutter_seed=7, mix="print"))

@@ -135,15 +135,10 @@ def test_a_pbr_scene_with_look_alikes_labels_only_glass_and_occludes_exactly(tmp
     """One tiny PBR render: distractors and room surfaces are in the image, id 0 in the masks; where a distractor
     stands in front of glass, the glass pixels behind it are background."""
     pytest.importorskip("mitsuba")
-    from sim.scenes.scenario import Scenario
-    from sim.world import build_world
-    from torm.geometry import look_at_cv
+    from tests.render_helpers import one_glass_cylinder_view
     from torm.segmentation.training.render import SceneLook, render_pbr
 
-    world = build_world(Scenario(name="t", objects=("cylinder",), spacing="moderate"), 2, robot=None)
-    c = world.object_pose(1)[:3, 3]
-    T = look_at_cv(c + np.array([0.45, 0.0, 0.12]), c + np.array([0.0, 0.0, 0.04]))
-    K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+    world, T, K = one_glass_cylinder_view(0.12)
     rgb_p, mask_p, _ = render_pbr(world, T[None], K[None], 80, 60, np.random.default_rng(0), spp=4)
     rgb_c, mask_c, info = render_pbr(world, T[None], K[None], 80, 60, np.random.default_rng(0), spp=4,
                                      look=SceneLook(n_distractors=6, room=True, clutter_seed=5))

@@ -53,7 +53,7 @@ class SceneLook:
         env, area = 1.0, 1.0
         if rng.random() < recipe.lighting_fraction:  # dim room + strong panel, bright room + no panel, ...
             env, area = float(np.exp(rng.uniform(np.log(0.2), np.log(2.0)))), float(rng.choice([0.0, 0.3, 1.0, 4.0]))
-        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)), mix=getattr(recipe, "distractor_mix", "v4"))
+        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)), mix=recipe.distractor_mix)
 
     @property
     def plain(self) -> bool:
