@@ -206,6 +206,13 @@ def evaluate_meshes(objects: list[TriMesh], scene: Scene, depth: bool = False,
     return out
 
 
+def check_tag(tag: str) -> str:
+    """``tag`` if it can name a result file (letters, digits, '-', '_'); else SystemExit naming the rule."""
+    if not tag.replace("_", "").replace("-", "").isalnum():
+        raise SystemExit(f"--tag {tag!r}: letters, digits, '-' and '_' only (it names the result files)")
+    return tag
+
+
 def write_json(path: Path, doc: dict[str, Any]) -> None:
     """Write ``doc`` as indented JSON (NaN -> null), atomically."""
     def clean(o: Any) -> Any:

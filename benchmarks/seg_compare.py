@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks._common import RESULTS, context, context_md, md_table, setup, write_json  # noqa: E402
+from benchmarks._common import RESULTS, check_tag, context, context_md, md_table, setup, write_json  # noqa: E402
 
 SPLITS = ("test_layouts", "test_shapes", "test_fixtures")
 
@@ -62,8 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(RESULTS), help="result folder")
     ap.add_argument("--note", default="", help="a paragraph for the Markdown file: what is compared and why")
     args = ap.parse_args(argv)
-    if not args.tag.replace("_", "").replace("-", "").isalnum():
-        raise SystemExit(f"--tag {args.tag!r}: letters, digits, '-' and '_' only (it names the result files)")
+    check_tag(args.tag)
     data = Path(args.data)
     found = [s for s in SPLITS if (data / s).is_dir()]
     if not found:

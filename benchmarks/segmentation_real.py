@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from benchmarks._common import RESULTS, ROOT, context, context_md, md_table, setup, write_json  # noqa: E402
+from benchmarks._common import RESULTS, ROOT, check_tag, context, context_md, md_table, setup, write_json  # noqa: E402
 
 CLEARGRASP = ROOT.parent / "shared" / "data" / "real" / "cleargrasp_d435"
 #: ClearGrasp's D435 colour intrinsics (files/camera_intrinsics.yaml): fx = fy = 921, cx = 642, cy = 359 px.
@@ -169,9 +169,7 @@ def main(argv: list[str] | None = None) -> int:
                                                "main table) instead of segmentation_real.{json,md}")
     ap.add_argument("--note", default="", help="a paragraph for the Markdown file: what the experiment is")
     args = ap.parse_args(argv)
-    if args.tag and not args.tag.replace("_", "").replace("-", "").isalnum():
-        raise SystemExit(f"--tag {args.tag!r}: letters, digits, '-' and '_' only (it names the result files)")
-    stem = f"segmentation_real_{args.tag}" if args.tag else "segmentation_real"
+    stem = f"segmentation_real_{check_tag(args.tag)}" if args.tag else "segmentation_real"
     setup()
     from torm.segmentation.learned import model_fingerprint
 

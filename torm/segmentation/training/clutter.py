@@ -26,8 +26,8 @@ Colours are sRGB HSV draws converted to linear.
 Mixes (``DataRecipe.distractor_mix``, :data:`MIXES`): ``v4`` draws the kinds and materials above with v4's weights
 (its data is reproduced exactly). ``print`` (segmenter v5) answers what v4 still marks as glass on real photos
 (ClearGrasp frames: a patterned notebook, a mug with a printed spiral, glossy red and black cases): mugs and books
-join the kinds, and a third of the materials are printed: ``textured`` and ``glossy_print`` (the same print
-under a GGX clear coat, alpha 0.02-0.2) read :func:`print_image` (stripes, rings and spirals, line art,
+join the kinds, and half of the materials are printed: ``textured`` (20 %) and ``glossy_print`` (30 %: the same
+print under a GGX clear coat, alpha 0.02-0.2) read :func:`print_image` (stripes, rings and spirals, line art,
 text-like rows, dots, tiles, noise) through UV coordinates (:func:`uv_soup`: cylindrical on can and mug sides,
 cube-mapped elsewhere). In the ``v4`` mix the meshes carry no UVs, so its ``textured`` draws show Mitsuba's
 per-triangle barycentric lookup of the label, not a print.
