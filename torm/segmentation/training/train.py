@@ -39,6 +39,7 @@ from torm.errors import ConfigError
 from torm.segmentation.training.augment import sensor_effects, zoom
 from torm.segmentation.training.model import OFFSET_SCALE, ExportWrapper, SegUNet, load_onnx_weights, normalise
 from torm.segmentation.training.targets import centre_targets, targets
+from torm.segmentation.training.widen import onnx_channels, widen
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +70,9 @@ class TrainConfig:
     threads: int = 1
     seed: int = 0
     init_from: str = ""  # a best.pt / checkpoint.pt / exported .onnx of the same channels (fine-tuning); "" = random
+    # an .onnx init_from of narrower stages is widened to ``channels`` (training/widen.py, Net2WiderNet); the copied
+    # channels' filters get Gaussian noise of this fraction of their layer's weight std, so that they can diverge
+    widen_noise: float = 0.01
     centre_head: bool = False  # also predict instance centres and offsets (5 output channels)
     centre_sigma_px: float = 4.0
     centre_loss_weight: float = 100.0
@@ -113,6 +117,8 @@ class TrainConfig:
             raise ConfigError(f"train.rehearsal_fraction {self.rehearsal_fraction} must be in [0, 1)")
         if self.anchor_weight < 0:
             raise ConfigError(f"train.anchor_weight {self.anchor_weight} must be >= 0")
+        if not 0.0 <= self.widen_noise <= 1.0:
+            raise ConfigError(f"train.widen_noise {self.widen_noise} must be in [0, 1]")
         if not 0.0 <= self.fg_crop_bias <= 1.0:
             raise ConfigError(f"train.fg_crop_bias {self.fg_crop_bias} must be in [0, 1]")
 
@@ -320,7 +326,15 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
             if not cfg.freeze_bn:
                 raise ConfigError(f"train.init_from {init} is an exported model (BatchNorms folded): set "
                                   "train.freeze_bn=true, or start from a best.pt")
-            load_onnx_weights(net, init)
+            file_channels = onnx_channels(str(init))
+            if file_channels == tuple(cfg.channels):
+                load_onnx_weights(net, init)
+            else:  # a narrower trained model: widened without changing what it computes (Net2WiderNet)
+                narrow = load_onnx_weights(SegUNet(file_channels, cfg.centre_head, net.in_channels), init)
+                net.load_state_dict(widen(narrow, cfg.channels, np.random.default_rng(cfg.seed),
+                                          cfg.widen_noise).state_dict())
+                log.info("widened %s from channels %s to %s (noise %g)", init, file_channels, cfg.channels,
+                         cfg.widen_noise)
         else:
             _load_pt(net, init)
         log.info("initialised from %s", init)
