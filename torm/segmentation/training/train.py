@@ -11,9 +11,10 @@ Gaussian noise sigma U(0, 6) grey levels (v1-v3), or, with ``sensor_effects`` > 
 shot noise, gamma, JPEG).
 AdamW with a cosine learning-rate schedule over ``steps``; ``init_from`` starts from an earlier run's weights
 (fine-tuning, e.g. MuJoCo-pretrained weights on PBR renders), from a ``best.pt`` or an exported ``.onnx`` file
-(BatchNorms folded: train it with ``freeze_bn``, every BatchNorm in eval mode). A checkpoint (model, optimiser,
-step, RNG state) is written every ``checkpoint_every`` steps and at the end; a restarted run continues from it. The
-checkpoint with the best validation score (``select_on``: foreground IoU, or object IoU after instance
+(BatchNorms folded: train it with ``freeze_bn``, every BatchNorm in eval mode; a file of narrower stages is widened to
+``channels`` first, computing what the file computes: :mod:`~torm.segmentation.training.widen`). A checkpoint
+(model, optimiser, step, RNG state) is written every ``checkpoint_every`` steps and at the end; a restarted run
+continues from it. The checkpoint with the best validation score (``select_on``: foreground IoU, or object IoU after instance
 extraction with the default post-processing; split ``val``: seen shapes, unseen layouts; never the test
 splits) is the one exported.
 """
@@ -69,7 +70,7 @@ class TrainConfig:
     val_every: int = 100
     threads: int = 1
     seed: int = 0
-    init_from: str = ""  # a best.pt / checkpoint.pt / exported .onnx of the same channels (fine-tuning); "" = random
+    init_from: str = ""  # best.pt / checkpoint.pt / .onnx of the same (.onnx: or narrower) channels; "" = random
     # an .onnx init_from of narrower stages is widened to ``channels`` (training/widen.py, Net2WiderNet); the copied
     # channels' filters get Gaussian noise of this fraction of their layer's weight std, so that they can diverge
     widen_noise: float = 0.01
