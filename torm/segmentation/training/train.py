@@ -14,9 +14,9 @@ AdamW with a cosine learning-rate schedule over ``steps``; ``init_from`` starts 
 (BatchNorms folded: train it with ``freeze_bn``, every BatchNorm in eval mode; a file of narrower stages is widened to
 ``channels`` first, computing what the file computes: :mod:`~torm.segmentation.training.widen`). A checkpoint
 (model, optimiser, step, RNG state) is written every ``checkpoint_every`` steps and at the end; a restarted run
-continues from it. The checkpoint with the best validation score (``select_on``: foreground IoU, or object IoU after instance
-extraction with the default post-processing; split ``val``: seen shapes, unseen layouts; never the test
-splits) is the one exported.
+continues from it. The checkpoint with the best validation score (``select_on``: foreground IoU, or object IoU
+after instance extraction with the default post-processing; split ``val``: seen shapes, unseen layouts; never the
+test splits) is the one exported.
 """
 
 from __future__ import annotations
