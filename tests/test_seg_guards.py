@@ -47,6 +47,10 @@ def test_the_domain_warning_fires_once_where_the_model_was_not_validated(caplog)
     with caplog.at_level(logging.WARNING, logger="torm.segmentation.learned"):
         ok = seg.segment(_cap("pbr mitsuba 3.9.1 llvm_ad_rgb spp 16"))
     assert ok.info["domain"]["validated"] and not [r for r in caplog.records if "not validated" in r.getMessage()]
+    # every renderer the model can be used on has a measured score in the card, the scalar fallback included
+    for domain, meta in (("pbr:scalar_rgb", "pbr mitsuba 3.9.1 scalar_rgb spp 16"), ("mujoco", "mujoco 3.17.0")):
+        info = seg.segment(_cap(meta)).info["domain"]
+        assert info["domain"] == domain and 0.0 < info["measured"] <= 1.0
 
 
 def test_segmenter_masks_are_never_called_ground_truth(tmp_path, capsys):
