@@ -7,7 +7,8 @@ render noise) and cached under ``--cache``. Each segmenter of ``--rows`` then se
 
 ``learned:<model>``   the learned segmenter with that model file (RGB only; ``learned_seg`` = the shipped v3);
 ``reference:<model>`` a reference-mode learned model (reads scene + reference);
-``difference``        the plain thresholded difference (``torm.segmentation.reference``).
+``difference``        the plain thresholded difference (``torm.segmentation.reference``);
+``difference:<sigma>`` the same after Gaussian smoothing of both images (sigma in px).
 
 Scores per view: union-mask IoU against the simulator's masks of the glass objects (``glass``; opaque objects count
 as background, what a transparent-object segmenter should output) and of every object (``all``); precision and
@@ -37,14 +38,15 @@ from benchmarks._common import RESULTS, ROOT, context, context_md, md_table, set
 log = logging.getLogger("segmentation_reference")
 
 
-def scenarios(suites: list[str]) -> list[tuple[str, str, int]]:
-    """(suite, scenario, layout seed) for every scenario of the suites, seeds 0, 1, 2, ... in order."""
+def scenarios(suites: list[str], seed_offset: int = 0) -> list[tuple[str, str, int]]:
+    """(suite, scenario, layout seed) for every scenario of the suites, seeds ``seed_offset`` + 0, 1, 2, ... in
+    order (another offset draws other layouts, tables and lights: a development set for choosing a setting)."""
     from sim.scenes.scenario import list_scenarios
 
     out: list[tuple[str, str, int]] = []
     for suite in suites:
         for name in list_scenarios(suite):
-            out.append((suite, name, len(out)))
+            out.append((suite, name, seed_offset + len(out)))
     return out
 
 
@@ -78,8 +80,10 @@ def make_row(row: str) -> tuple[str, Any]:
     from torm.segmentation.learned import LearnedConfig, model_fingerprint
 
     kind, _, model = row.partition(":")
-    if kind == "difference":
-        return "difference", make_segmenter("difference")
+    if kind == "difference":  # difference or difference:<blur sigma px>
+        if not model:
+            return "difference", make_segmenter("difference")
+        return f"difference, blur {float(model):g} px", make_segmenter("difference", {"blur_sigma_px": float(model)})
     path = LearnedConfig(model=model).model_path
     seg = make_segmenter("learned", {"model": str(path), "threads": 2})
     if kind == "reference" and not seg.needs_reference:
@@ -120,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--renderer", default="pbr", choices=("pbr", "pbr_scalar", "mujoco"),
                     help="who renders the captures (pbr: Mitsuba llvm_ad_rgb; pbr_scalar: scalar_rgb; mujoco)")
     ap.add_argument("--rows", default="learned:learned_seg,difference")
+    ap.add_argument("--seed-offset", type=int, default=0,
+                    help="layout seeds start here (0: the reported set; another value: a development set)")
     ap.add_argument("--cache", default=str(ROOT / "runs" / "seg_reference_captures"))
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", default="", help="result file stem (default segmentation_reference[_<renderer>])")
@@ -132,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     from sim.render.textures import table_texture
     from torm.capture.io import load_capture
 
-    scs = scenarios([s for s in args.suites.split(",") if s])
+    scs = scenarios([s for s in args.suites.split(",") if s], args.seed_offset)
     cache = Path(args.cache)
     jobs = [(name, seed, args.views, args.scale, args.spp,
              str(cache / f"{name}_s{seed}_v{args.views}_x{args.scale}_{args.renderer}_spp{args.spp}"), args.renderer)
@@ -172,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
             "mujoco": "MuJoCo rasteriser"}[args.renderer]
     L = [f"# Segmentation with and without a reference pass ({look} captures of the suites)", "",
          context_md(doc["context"]), "",
-         f"{len(scs)} scenarios ({', '.join(suites)}; scenario k has layout seed k), {args.views} rig views each at "
+         f"{len(scs)} scenarios ({', '.join(suites)}; scenario k has layout seed {args.seed_offset} + k), "
+         f"{args.views} rig views each at "
          f"{round(1280 * args.scale)}x{round(720 * args.scale)}, {look}"
          + (f" at {args.spp} spp" if args.renderer != "mujoco" else "") + ", each with its "
          "reference pass (the same cameras over the empty workspace, independent render noise). Scores per view, "

@@ -37,6 +37,25 @@ def test_difference_instances_find_the_object_and_ignore_identical_background():
     assert difference_instances(ref, ref).max() == 0
 
 
+def test_smoothing_averages_out_independent_render_noise_between_the_passes():
+    from torm.errors import ConfigError
+    from torm.segmentation.reference import DifferenceConfig, difference_instances, difference_map
+
+    scene, ref, disc = _pair()
+    rng = np.random.default_rng(3)
+    # independent noise in each pass (a path tracer's, a sensor's): sigma 8 grey levels
+    noisy = [np.clip(x + rng.normal(0, 8, x.shape), 0, 255).astype(np.uint8) for x in (scene, ref)]
+    raw, smooth = difference_map(*noisy), difference_map(*noisy, blur_sigma_px=1.5)
+    assert np.mean(raw[~disc] > 10) > 0.5 > 0.05 > np.mean(smooth[~disc] > 10)  # background: noise no longer passes
+    assert np.mean(smooth[disc] > 10) > 0.9  # the object still does
+    iou = [np.sum((m > 0) & disc) / np.sum((m > 0) | disc) for m in (
+        difference_instances(*noisy), difference_instances(*noisy, blur_sigma_px=1.5))]
+    assert iou[1] > 0.8 and iou[0] < 0.5  # unsmoothed, the noise fills the frame
+    np.testing.assert_array_equal(difference_map(ref, ref, blur_sigma_px=2.0), 0.0)
+    with pytest.raises(ConfigError, match="blur_sigma_px"):
+        DifferenceConfig(blur_sigma_px=-1.0)
+
+
 def test_attach_reference_pairs_views_by_pose_and_refuses_a_moved_camera_or_another_renderer():
     from torm.segmentation.reference import attach_reference
 

@@ -8,9 +8,10 @@ misregistration all differ too: mean IoU 0.63 measured on PBR pairs, ``../shared
 - :func:`attach_reference`: pair a recorded reference capture with a scene capture, view by view, by camera pose;
   refuse a reference whose poses differ by more than the arm's repeatability, of another image size or of another
   renderer (named errors with the fix).
-- :func:`difference_instances`: the plain thresholded difference (per-channel exposure normalisation, |scene -
-  reference| > ``threshold`` grey levels in any channel, close 7x7, open 3x3, holes filled, connected components
-  >= ``min_area_px``) as instance masks: the baseline, and the high-recall seed.
+- :func:`difference_instances`: the plain thresholded difference (per-channel exposure normalisation, optional
+  Gaussian smoothing of both images, |scene - reference| > ``threshold`` grey levels in any channel, close 7x7,
+  open 3x3, holes filled, connected components >= ``min_area_px``) as instance masks: the baseline, and the
+  high-recall seed.
 - :class:`DifferenceSegmenter` (``difference``): that baseline as a :class:`~torm.segmentation.base.Segmenter`.
 - :func:`check_background`: after segmentation, the median absolute difference between scene and reference
   outside the (dilated) objects; above ``max_grey`` the static background no longer matches (the table moved,
@@ -89,16 +90,20 @@ def _normalised(img_hxwx3: np.ndarray) -> np.ndarray:
     return f * (128.0 / np.maximum(f.reshape(-1, 3).mean(axis=0), 1.0))
 
 
-def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray) -> np.ndarray:
+def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float = 0.0) -> np.ndarray:
     """(H, W) float32: max over channels of |scene - reference| after per-channel exposure normalisation (grey
-    levels)."""
-    return np.abs(_normalised(rgb_hxwx3) - _normalised(reference_hxwx3)).max(axis=2)
+    levels); with ``blur_sigma_px`` > 0 both images are first smoothed by a Gaussian of that sigma (px), which
+    averages out independent render or sensor noise between the two passes."""
+    a, b = _normalised(rgb_hxwx3), _normalised(reference_hxwx3)
+    if blur_sigma_px > 0:
+        a, b = (cv2.GaussianBlur(x, (0, 0), blur_sigma_px) for x in (a, b))
+    return np.abs(a - b).max(axis=2)
 
 
 def difference_instances(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, threshold: float = 10.0,
-                         min_area_px: int = 60) -> np.ndarray:
+                         min_area_px: int = 60, blur_sigma_px: float = 0.0) -> np.ndarray:
     """(H, W) int32 instances of the thresholded difference (see the module docstring), ids 1..N by area."""
-    fg = (difference_map(rgb_hxwx3, reference_hxwx3) > threshold).astype(np.uint8)
+    fg = (difference_map(rgb_hxwx3, reference_hxwx3, blur_sigma_px) > threshold).astype(np.uint8)
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     # fill holes: background not connected to the border becomes foreground
@@ -140,14 +145,16 @@ def check_background(capture: Capture, masks_vxhxw: np.ndarray, max_grey: float 
 
 @dataclass(frozen=True)
 class DifferenceConfig:
-    """``threshold`` grey levels (exposure-normalised |scene - reference|), ``min_area_px`` px."""
+    """``threshold`` grey levels (exposure-normalised |scene - reference|), ``min_area_px`` px, ``blur_sigma_px``
+    px (Gaussian smoothing of both images first; 0 = none)."""
 
     threshold: float = 10.0
     min_area_px: int = 60
+    blur_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
-        if not self.threshold > 0 or self.min_area_px < 0:
-            raise ConfigError("difference: need threshold > 0 and min_area_px >= 0")
+        if not self.threshold > 0 or self.min_area_px < 0 or not 0.0 <= self.blur_sigma_px <= 10.0:
+            raise ConfigError("difference: need threshold > 0, min_area_px >= 0 and 0 <= blur_sigma_px <= 10")
 
 
 class DifferenceSegmenter(Segmenter):
@@ -167,7 +174,8 @@ class DifferenceSegmenter(Segmenter):
             if v.rgb is None or v.reference_rgb is None:
                 raise CaptureError(f"view {i} ({v.name!r}) has no reference view; the difference segmenter needs a "
                                    "reference pass (--set capture.reference=true, or torm segment --reference DIR)")
-            m = difference_instances(v.rgb, v.reference_rgb, self.config.threshold, self.config.min_area_px)
+            m = difference_instances(v.rgb, v.reference_rgb, self.config.threshold, self.config.min_area_px,
+                                     self.config.blur_sigma_px)
             d = []
             for k in range(1, int(m.max()) + 1):
                 ys, xs = np.nonzero(m == k)
@@ -175,7 +183,8 @@ class DifferenceSegmenter(Segmenter):
                                    "object", k))
             masks.append(m)
             dets.append(tuple(d))
-        info: dict[str, Any] = {"segmenter": self.name, "threshold": self.config.threshold}
+        info: dict[str, Any] = {"segmenter": self.name, "threshold": self.config.threshold,
+                                "blur_sigma_px": self.config.blur_sigma_px}
         out = np.stack(masks)
         info.update(score_against_capture(out, capture))
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
