@@ -80,10 +80,9 @@ def make_row(row: str) -> tuple[str, Any]:
     from torm.segmentation.learned import LearnedConfig, model_fingerprint
 
     kind, _, model = row.partition(":")
-    if kind == "difference":  # difference or difference:<blur sigma px>
-        if not model:
-            return "difference", make_segmenter("difference")
-        return f"difference, blur {float(model):g} px", make_segmenter("difference", {"blur_sigma_px": float(model)})
+    if kind == "difference":  # difference (the default smoothing) or difference:<blur sigma px>
+        seg = make_segmenter("difference", {"blur_sigma_px": float(model)} if model else {})
+        return f"difference, blur {seg.config.blur_sigma_px:g} px", seg
     path = LearnedConfig(model=model).model_path
     seg = make_segmenter("learned", {"model": str(path), "threads": 2})
     if kind == "reference" and not seg.needs_reference:
