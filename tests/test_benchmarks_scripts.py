@@ -247,3 +247,16 @@ def test_seg_compare_scores_every_model_on_the_same_views(tmp_path: Path) -> Non
     res = subprocess.run([*cmd[:3], str(tmp_path / "empty"), *cmd[4:]], cwd=ROOT, env=env, capture_output=True,
                          text=True, timeout=120)
     assert res.returncode != 0 and "no test split" in res.stderr
+
+
+def test_segmentation_reference_development_seeds_and_difference_rows():
+    from benchmarks.segmentation_reference import make_row, scenarios
+
+    report, dev = scenarios(["rw", "lab"]), scenarios(["rw", "lab"], 100)
+    assert [s for _, _, s in report] == list(range(len(report))) and len(report) > 8
+    assert [n for _, n, _ in dev] == [n for _, n, _ in report] and [s for _, _, s in dev][0] == 100
+    assert not {s for *_, s in dev} & {s for *_, s in report}  # the development layouts are other layouts
+    label, seg = make_row("difference:0")
+    assert label == "difference, blur 0 px" and seg.config.blur_sigma_px == 0.0
+    label, seg = make_row("difference")
+    assert label == f"difference, blur {seg.config.blur_sigma_px:g} px"  # the default setting is named too
