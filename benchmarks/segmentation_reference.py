@@ -8,7 +8,8 @@ render noise) and cached under ``--cache``. Each segmenter of ``--rows`` then se
 ``learned:<model>``   the learned segmenter with that model file (RGB only; ``learned_seg`` = the shipped v3);
 ``reference:<model>`` a reference-mode learned model (reads scene + reference);
 ``difference``        the plain thresholded difference (``torm.segmentation.reference``);
-``difference:<sigma>`` the same after Gaussian smoothing of both images (sigma in px).
+``difference:<sigma>`` the same after Gaussian smoothing of both images (sigma in px; ``auto``, the default: none on
+                      a noise-free pair, 1.5 px otherwise).
 
 Scores per view: union-mask IoU against the simulator's masks of the glass objects (``glass``; opaque objects count
 as background, what a transparent-object segmenter should output) and of every object (``all``); precision and
@@ -80,9 +81,11 @@ def make_row(row: str) -> tuple[str, Any]:
     from torm.segmentation.learned import LearnedConfig, model_fingerprint
 
     kind, _, model = row.partition(":")
-    if kind == "difference":  # difference (the default smoothing) or difference:<blur sigma px>
-        seg = make_segmenter("difference", {"blur_sigma_px": float(model)} if model else {})
-        return f"difference, blur {seg.config.blur_sigma_px:g} px", seg
+    if kind == "difference":  # difference (the default smoothing), difference:<blur sigma px> or difference:auto
+        seg = make_segmenter("difference", {"blur_sigma_px": model if model == "auto" else float(model)}
+                             if model else {})
+        b = seg.config.blur_sigma_px
+        return "difference, blur " + ("auto (0 on noise-free pairs, else 1.5 px)" if b == "auto" else f"{b:g} px"), seg
     path = LearnedConfig(model=model).model_path
     seg = make_segmenter("learned", {"model": str(path), "threads": 2})
     if kind == "reference" and not seg.needs_reference:

@@ -259,4 +259,5 @@ def test_segmentation_reference_development_seeds_and_difference_rows():
     label, seg = make_row("difference:0")
     assert label == "difference, blur 0 px" and seg.config.blur_sigma_px == 0.0
     label, seg = make_row("difference")
-    assert label == f"difference, blur {seg.config.blur_sigma_px:g} px"  # the default setting is named too
+    assert label.startswith("difference, blur auto") and seg.config.blur_sigma_px == "auto"  # the default is named
+    assert make_row("difference:auto")[0] == label

@@ -56,6 +56,49 @@ def test_smoothing_averages_out_independent_render_noise_between_the_passes():
         DifferenceConfig(blur_sigma_px=-1.0)
 
 
+def test_exposure_gain_is_read_off_the_static_background_not_the_objects():
+    from torm.segmentation.reference import difference_map
+
+    scene, ref, disc = _pair()
+    # the reference was taken 20 % darker (another exposure); the scene holds a bright object over a quarter of it
+    big = np.zeros(disc.shape, bool)
+    big[:, :24] = True
+    scene[big] = 250
+    dark = np.round(ref.astype(np.float64) * 0.8).astype(np.uint8)
+    d = difference_map(scene, dark)
+    bg = ~big & ~disc
+    # the gain comes from the background's median ratio: only 8-bit rounding remains there (a gain from the channel
+    # means, which count the bright object, leaves 29 grey levels at the median)
+    assert np.percentile(d[bg], 99) < 2.0
+    assert np.mean(d[disc] > 10) > 0.9 and np.mean(d[big] > 10) > 0.9
+
+
+def test_pair_noise_measures_the_independent_noise_of_the_two_passes_and_auto_smooths_only_noisy_pairs():
+    from torm.errors import ConfigError
+    from torm.segmentation.reference import (
+        AUTO_BLUR_PX,
+        DifferenceConfig,
+        DifferenceSegmenter,
+        pair_noise,
+        resolve_blur,
+    )
+
+    scene, ref, disc = _pair()
+    assert pair_noise(scene, ref) == 0.0  # a deterministic renderer: identical background, the object a minority
+    rng = np.random.default_rng(5)
+    base = np.full((120, 160, 3), 128.0)
+    a, b = (np.clip(base + rng.normal(0, 4, base.shape), 0, 255).astype(np.uint8) for _ in range(2))
+    # sigma 4 in each pass: the difference's sigma is 4 x sqrt(2) = 5.66 (integer rounding adds 1/12 per pass)
+    assert abs(pair_noise(a, b) - 4 * np.sqrt(2)) < 0.4
+    assert resolve_blur(scene, ref, "auto") == 0.0 and resolve_blur(a, b, "auto") == AUTO_BLUR_PX
+    assert resolve_blur(a, b, 0.7) == 0.7
+    assert DifferenceConfig().blur_sigma_px == "auto"
+    cap = Capture(views=(CameraView(K, np.eye(4), rgb=scene, reference_rgb=ref),))
+    assert DifferenceSegmenter().segment(cap).info["blur_sigma_px_used"] == [0.0]
+    with pytest.raises(ConfigError, match="'auto' or a number"):
+        DifferenceConfig(blur_sigma_px="fast")  # type: ignore[arg-type]
+
+
 def test_attach_reference_pairs_views_by_pose_and_refuses_a_moved_camera_or_another_renderer():
     from torm.segmentation.reference import attach_reference
 

@@ -8,10 +8,11 @@ misregistration all differ too: mean IoU 0.63 measured on PBR pairs, ``../shared
 - :func:`attach_reference`: pair a recorded reference capture with a scene capture, view by view, by camera pose;
   refuse a reference whose poses differ by more than the arm's repeatability, of another image size or of another
   renderer (named errors with the fix).
-- :func:`difference_instances`: the plain thresholded difference (per-channel exposure normalisation, optional
-  Gaussian smoothing of both images, |scene - reference| > ``threshold`` grey levels in any channel, close 7x7,
-  open 3x3, holes filled, connected components >= ``min_area_px``) as instance masks: the baseline, and the
-  high-recall seed.
+- :func:`difference_instances`: the plain thresholded difference (per-channel exposure normalisation with the
+  reference's gain read off the static background, optional Gaussian smoothing of both images, |scene - reference|
+  > ``threshold`` grey levels in any channel, close 7x7, open 3x3, holes filled, connected components >=
+  ``min_area_px``) as instance masks: the baseline, and the high-recall seed. :func:`pair_noise` measures a pair's
+  noise; ``blur_sigma_px: auto`` (the default) smooths only pairs that have some.
 - :class:`DifferenceSegmenter` (``difference``): that baseline as a :class:`~torm.segmentation.base.Segmenter`.
 - :func:`check_background`: after segmentation, the median absolute difference between scene and reference
   outside the (dilated) objects; above ``max_grey`` the static background no longer matches (the table moved,
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -84,24 +85,60 @@ def attach_reference(capture: Capture, reference: Capture, max_shift_mm: float =
     return replace(capture, views=tuple(views), metadata=meta)
 
 
-def _normalised(img_hxwx3: np.ndarray) -> np.ndarray:
-    """Per-channel exposure normalisation: each channel scaled to a mean of 128."""
-    f = img_hxwx3.astype(np.float32)
-    return f * (128.0 / np.maximum(f.reshape(-1, 3).mean(axis=0), 1.0))
+def _normalised_pair(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exposure normalisation of a scene / reference pair (float32, grey levels): the scene's channels scaled to a
+    mean of 128, the reference's by the same factor times its per-channel gain to the scene, the median of the
+    pixel ratios scene / reference over pixels above 8 grey levels in both. The median is read off the static
+    background, which most pixels show; a mean ratio would also count the objects, which only the scene holds, and
+    leave a difference of a few grey levels on a background that did not change."""
+    a, b = rgb_hxwx3.astype(np.float32), reference_hxwx3.astype(np.float32)
+    k = 128.0 / np.maximum(a.reshape(-1, 3).mean(axis=0), 1.0)
+    gain = np.ones(3, np.float32)
+    for c in range(3):
+        ok = (a[..., c] > 8) & (b[..., c] > 8)
+        if np.count_nonzero(ok) >= 100:
+            gain[c] = float(np.median(a[..., c][ok] / b[..., c][ok]))
+    return a * k, b * (k * gain)
 
 
-def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float = 0.0) -> np.ndarray:
-    """(H, W) float32: max over channels of |scene - reference| after per-channel exposure normalisation (grey
-    levels); with ``blur_sigma_px`` > 0 both images are first smoothed by a Gaussian of that sigma (px), which
-    averages out independent render or sensor noise between the two passes."""
-    a, b = _normalised(rgb_hxwx3), _normalised(reference_hxwx3)
-    if blur_sigma_px > 0:
-        a, b = (cv2.GaussianBlur(x, (0, 0), blur_sigma_px) for x in (a, b))
+def pair_noise(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray) -> float:
+    """Robust noise of a scene / reference pair, grey levels: the largest over channels of 1.4826 x the median
+    absolute deviation of the exposure-normalised difference (a Gaussian's sigma; the objects, a minority of the
+    pixels, do not move it). 0 for a deterministic renderer's passes (MuJoCo); 1.5-3 for Mitsuba at 16 spp."""
+    a, b = _normalised_pair(rgb_hxwx3, reference_hxwx3)
+    d = (a - b).reshape(-1, 3)
+    return float((1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)).max())
+
+
+#: the smoothing ``blur_sigma_px: auto`` applies to a pair with noise (px), and the noise below which a pair counts
+#: as noise-free (grey levels: below half a level only the 8-bit quantisation differs)
+AUTO_BLUR_PX = 1.5
+NOISE_FREE_GREY = 0.5
+
+
+def resolve_blur(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float | str) -> float:
+    """The smoothing (px) for a pair: ``blur_sigma_px`` itself, or for ``"auto"`` 0 when the pair is noise-free
+    (:func:`pair_noise` < :data:`NOISE_FREE_GREY`) and :data:`AUTO_BLUR_PX` otherwise."""
+    if blur_sigma_px == "auto":
+        return 0.0 if pair_noise(rgb_hxwx3, reference_hxwx3) < NOISE_FREE_GREY else AUTO_BLUR_PX
+    return float(blur_sigma_px)
+
+
+def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float | str = 0.0
+                   ) -> np.ndarray:
+    """(H, W) float32: max over channels of |scene - reference| after exposure normalisation
+    (:func:`_normalised_pair`; grey levels); with ``blur_sigma_px`` > 0 both images are first smoothed by a Gaussian
+    of that sigma (px), which averages out independent render or sensor noise between the two passes; ``"auto"``:
+    :func:`resolve_blur`."""
+    sigma = resolve_blur(rgb_hxwx3, reference_hxwx3, blur_sigma_px)
+    a, b = _normalised_pair(rgb_hxwx3, reference_hxwx3)
+    if sigma > 0:
+        a, b = (cv2.GaussianBlur(x, (0, 0), sigma) for x in (a, b))
     return np.abs(a - b).max(axis=2)
 
 
 def difference_instances(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, threshold: float = 10.0,
-                         min_area_px: int = 60, blur_sigma_px: float = 0.0) -> np.ndarray:
+                         min_area_px: int = 60, blur_sigma_px: float | str = 0.0) -> np.ndarray:
     """(H, W) int32 instances of the thresholded difference (see the module docstring), ids 1..N by area."""
     fg = (difference_map(rgb_hxwx3, reference_hxwx3, blur_sigma_px) > threshold).astype(np.uint8)
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
@@ -146,19 +183,24 @@ def check_background(capture: Capture, masks_vxhxw: np.ndarray, max_grey: float 
 @dataclass(frozen=True)
 class DifferenceConfig:
     """``threshold`` grey levels (exposure-normalised |scene - reference|), ``min_area_px`` px, ``blur_sigma_px``
-    px (Gaussian smoothing of both images first; 0 = none)."""
+    px (Gaussian smoothing of both images first; 0 = none; ``"auto"``: none on a noise-free pair, else
+    :data:`AUTO_BLUR_PX`, see :func:`resolve_blur`)."""
 
     threshold: float = 10.0
     min_area_px: int = 60
-    # chosen on a development set of PBR pairs (layout seeds 100-123, benchmarks/results/
+    # 1.5 px was chosen on a development set of PBR pairs (layout seeds 100-123, benchmarks/results/
     # segmentation_reference_dev_blur.md: glass IoU 0.29 unsmoothed, 0.51 / 0.57 / 0.57 / 0.54 at 1 / 1.5 / 2 / 3 px);
-    # it trades recall for precision (reported set: recall 0.90 -> 0.75, precision 0.27 -> 0.72): for the
-    # high-recall seed, or on noise-free renders (MuJoCo: 0.91 unsmoothed, 0.83 smoothed), set 0
-    blur_sigma_px: float = 1.5
+    # it trades recall for precision (reported set: recall 0.90 -> 0.75, precision 0.27 -> 0.72). On noise-free
+    # pairs (MuJoCo: 0.91 unsmoothed, 0.83 smoothed) it only costs, so "auto" leaves those unsmoothed. For the
+    # high-recall seed set 0
+    blur_sigma_px: float | Literal["auto"] = "auto"
 
     def __post_init__(self) -> None:
-        if not self.threshold > 0 or self.min_area_px < 0 or not 0.0 <= self.blur_sigma_px <= 10.0:
-            raise ConfigError("difference: need threshold > 0, min_area_px >= 0 and 0 <= blur_sigma_px <= 10")
+        blur_ok = self.blur_sigma_px == "auto" or (
+            isinstance(self.blur_sigma_px, (int, float)) and 0.0 <= self.blur_sigma_px <= 10.0)
+        if not self.threshold > 0 or self.min_area_px < 0 or not blur_ok:
+            raise ConfigError("difference: need threshold > 0, min_area_px >= 0 and blur_sigma_px 'auto' or a number "
+                              f"of px in [0, 10] (got {self.blur_sigma_px!r})")
 
 
 class DifferenceSegmenter(Segmenter):
@@ -173,13 +215,13 @@ class DifferenceSegmenter(Segmenter):
         import time
 
         t0 = time.perf_counter()
-        masks, dets = [], []
+        masks, dets, blurs = [], [], []
         for i, v in enumerate(capture.views):
             if v.rgb is None or v.reference_rgb is None:
                 raise CaptureError(f"view {i} ({v.name!r}) has no reference view; the difference segmenter needs a "
                                    "reference pass (--set capture.reference=true, or torm segment --reference DIR)")
-            m = difference_instances(v.rgb, v.reference_rgb, self.config.threshold, self.config.min_area_px,
-                                     self.config.blur_sigma_px)
+            sigma = resolve_blur(v.rgb, v.reference_rgb, self.config.blur_sigma_px)
+            m = difference_instances(v.rgb, v.reference_rgb, self.config.threshold, self.config.min_area_px, sigma)
             d = []
             for k in range(1, int(m.max()) + 1):
                 ys, xs = np.nonzero(m == k)
@@ -187,8 +229,10 @@ class DifferenceSegmenter(Segmenter):
                                    "object", k))
             masks.append(m)
             dets.append(tuple(d))
+            blurs.append(sigma)
         info: dict[str, Any] = {"segmenter": self.name, "threshold": self.config.threshold,
-                                "blur_sigma_px": self.config.blur_sigma_px}
+                                "blur_sigma_px": self.config.blur_sigma_px,
+                                "blur_sigma_px_used": sorted(set(blurs))}
         out = np.stack(masks)
         info.update(score_against_capture(out, capture))
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
