@@ -261,3 +261,18 @@ def test_segmentation_reference_development_seeds_and_difference_rows():
     label, seg = make_row("difference")
     assert label.startswith("difference, blur auto") and seg.config.blur_sigma_px == "auto"  # the default is named
     assert make_row("difference:auto")[0] == label
+
+
+def test_segmentation_reference_scores_views_without_glass_by_their_false_positives():
+    import numpy as np
+
+    from benchmarks.segmentation_reference import score
+
+    empty = np.zeros((4, 5), bool)
+    some = empty.copy()
+    some[1:3, 1:3] = True
+    assert score(empty, empty) == {"iou": 1.0, "precision": 1.0, "recall": 1.0}  # nothing there, nothing marked
+    assert score(some, empty)["iou"] == 0.0 and score(empty, some)["recall"] == 0.0
+    half = some.copy()
+    half[1, 1:3] = False
+    assert score(half, some) == {"iou": 0.5, "precision": 1.0, "recall": 0.5}

@@ -101,13 +101,16 @@ def _normalised_pair(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray) -> tupl
     return a * k, b * (k * gain)
 
 
+def _noise(a_hxwx3: np.ndarray, b_hxwx3: np.ndarray) -> float:
+    d = (a_hxwx3 - b_hxwx3).reshape(-1, 3)
+    return float((1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)).max())
+
+
 def pair_noise(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray) -> float:
     """Robust noise of a scene / reference pair, grey levels: the largest over channels of 1.4826 x the median
     absolute deviation of the exposure-normalised difference (a Gaussian's sigma; the objects, a minority of the
     pixels, do not move it). 0 for a deterministic renderer's passes (MuJoCo); 1.5-3 for Mitsuba at 16 spp."""
-    a, b = _normalised_pair(rgb_hxwx3, reference_hxwx3)
-    d = (a - b).reshape(-1, 3)
-    return float((1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)).max())
+    return _noise(*_normalised_pair(rgb_hxwx3, reference_hxwx3))
 
 
 #: the smoothing ``blur_sigma_px: auto`` applies to a pair with noise (px), and the noise below which a pair counts
@@ -116,12 +119,18 @@ AUTO_BLUR_PX = 1.5
 NOISE_FREE_GREY = 0.5
 
 
+def _resolve(a_hxwx3: np.ndarray, b_hxwx3: np.ndarray, blur_sigma_px: float | str) -> float:
+    if blur_sigma_px == "auto":
+        return 0.0 if _noise(a_hxwx3, b_hxwx3) < NOISE_FREE_GREY else AUTO_BLUR_PX
+    return float(blur_sigma_px)
+
+
 def resolve_blur(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float | str) -> float:
     """The smoothing (px) for a pair: ``blur_sigma_px`` itself, or for ``"auto"`` 0 when the pair is noise-free
     (:func:`pair_noise` < :data:`NOISE_FREE_GREY`) and :data:`AUTO_BLUR_PX` otherwise."""
-    if blur_sigma_px == "auto":
-        return 0.0 if pair_noise(rgb_hxwx3, reference_hxwx3) < NOISE_FREE_GREY else AUTO_BLUR_PX
-    return float(blur_sigma_px)
+    if blur_sigma_px != "auto":
+        return float(blur_sigma_px)
+    return _resolve(*_normalised_pair(rgb_hxwx3, reference_hxwx3), blur_sigma_px)
 
 
 def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float | str = 0.0
@@ -130,17 +139,28 @@ def difference_map(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigm
     (:func:`_normalised_pair`; grey levels); with ``blur_sigma_px`` > 0 both images are first smoothed by a Gaussian
     of that sigma (px), which averages out independent render or sensor noise between the two passes; ``"auto"``:
     :func:`resolve_blur`."""
-    sigma = resolve_blur(rgb_hxwx3, reference_hxwx3, blur_sigma_px)
+    return _difference(rgb_hxwx3, reference_hxwx3, blur_sigma_px)[0]
+
+
+def _difference(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, blur_sigma_px: float | str
+                ) -> tuple[np.ndarray, float]:
+    """(:func:`difference_map`, the smoothing it applied in px)."""
     a, b = _normalised_pair(rgb_hxwx3, reference_hxwx3)
+    sigma = _resolve(a, b, blur_sigma_px)
     if sigma > 0:
         a, b = (cv2.GaussianBlur(x, (0, 0), sigma) for x in (a, b))
-    return np.abs(a - b).max(axis=2)
+    return np.abs(a - b).max(axis=2), sigma
 
 
 def difference_instances(rgb_hxwx3: np.ndarray, reference_hxwx3: np.ndarray, threshold: float = 10.0,
                          min_area_px: int = 60, blur_sigma_px: float | str = 0.0) -> np.ndarray:
     """(H, W) int32 instances of the thresholded difference (see the module docstring), ids 1..N by area."""
-    fg = (difference_map(rgb_hxwx3, reference_hxwx3, blur_sigma_px) > threshold).astype(np.uint8)
+    return _instances((difference_map(rgb_hxwx3, reference_hxwx3, blur_sigma_px) > threshold).astype(np.uint8),
+                      min_area_px)
+
+
+def _instances(fg: np.ndarray, min_area_px: int) -> np.ndarray:
+    """Close 7x7, open 3x3, fill holes and keep connected components >= ``min_area_px`` of a (H, W) uint8 mask."""
     fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     # fill holes: background not connected to the border becomes foreground
@@ -220,8 +240,8 @@ class DifferenceSegmenter(Segmenter):
             if v.rgb is None or v.reference_rgb is None:
                 raise CaptureError(f"view {i} ({v.name!r}) has no reference view; the difference segmenter needs a "
                                    "reference pass (--set capture.reference=true, or torm segment --reference DIR)")
-            sigma = resolve_blur(v.rgb, v.reference_rgb, self.config.blur_sigma_px)
-            m = difference_instances(v.rgb, v.reference_rgb, self.config.threshold, self.config.min_area_px, sigma)
+            diff, sigma = _difference(v.rgb, v.reference_rgb, self.config.blur_sigma_px)
+            m = _instances((diff > self.config.threshold).astype(np.uint8), self.config.min_area_px)
             d = []
             for k in range(1, int(m.max()) + 1):
                 ys, xs = np.nonzero(m == k)
