@@ -276,3 +276,39 @@ def test_segmentation_reference_scores_views_without_glass_by_their_false_positi
     half = some.copy()
     half[1, 1:3] = False
     assert score(half, some) == {"iou": 0.5, "precision": 1.0, "recall": 0.5}
+
+
+def test_reference_background_counts_false_refusals_and_acceptances(tmp_path: Path) -> None:
+    import numpy as np
+
+    from benchmarks import reference_background as rb
+    from torm.capture.io import save_capture
+    from torm.types import CameraView, Capture
+
+    rng = np.random.default_rng(0)
+    h, w = 48, 64
+    yy, xx = np.mgrid[0:h, 0:w]
+    disc = ((yy - 24) ** 2 + (xx - 32) ** 2 < 8**2).astype(np.int32)
+
+    def table(period: float) -> np.ndarray:
+        return np.clip(120 + 40 * np.sin(xx / period)[..., None] + np.zeros((h, w, 3)), 0, 255)
+
+    def noisy(img: np.ndarray) -> np.ndarray:
+        return np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8)
+
+    K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
+    for seed, period in ((0, 3.0), (200, 7.0)):  # the stale reference shows another table
+        bg = table(period)
+        scene = bg.copy()
+        scene[disc > 0] = 230
+        cap = Capture(views=(CameraView(K, np.eye(4), rgb=noisy(scene), mask=disc, reference_rgb=noisy(bg)),))
+        save_capture(cap, rb.folder(tmp_path / "cache", "rw1", seed, "pbr"))
+    args = ["--suites", "rw", "--limit", "1", "--masks", "none,truth,difference", "--blur", "auto",
+            "--cache", str(tmp_path / "cache"), "--results", str(tmp_path), "--out", "bg"]
+    assert rb.main(args) == 0
+    doc = json.loads((tmp_path / "bg.json").read_text())
+    for r in doc["rows"]:
+        assert (r["grey"] < doc["max_grey"]) == (r["pair"] == "valid"), r  # the stale one is caught by every mask
+    assert "| difference | auto |" in (tmp_path / "bg.md").read_text()
+    with pytest.raises(SystemExit, match="not cached"):
+        rb.main([*args[:4], "--stale-offset", "300", *args[4:]])
