@@ -79,9 +79,29 @@ def _capture_plugin(config: TrialConfig, backend: Any, needs: Any, rgb: bool) ->
         full = backend.capture(n)
         cap = full.subset([most_top_down_view(full)]) if needs.views == "top_down" else full
         info = {"views_captured": len(full), "views_used": len(cap), "channels": "all"}
+    if needs.reference:
+        cap, info = _recorded_reference(config, cap, info)
     if needs.reference and any(v.reference_rgb is None for v in cap.views):
-        raise ConfigError(f"method {config.method!r} needs reference views, which this backend did not capture")
+        raise ConfigError(f"method {config.method!r} needs reference views, which this backend did not capture: "
+                          "set capture.reference=true (simulation) or capture.reference_dir=DIR (a recorded pass)")
     return cap, {**info, "needs": needs.as_dict()}
+
+
+def _recorded_reference(config: TrialConfig, capture: Capture, info: dict[str, Any]
+                        ) -> tuple[Capture, dict[str, Any]]:
+    """``capture`` with ``config.capture.reference_dir``'s recorded reference pass attached view by view
+    (:func:`torm.segmentation.reference.attach_reference`) and its static background checked against the scene
+    before anything reads it (:func:`~torm.segmentation.reference.check_background` over the whole views); both
+    raise :class:`CaptureError` with the fix. Unchanged without a ``reference_dir``."""
+    if not config.capture.reference_dir:
+        return capture, info
+    from torm.capture.io import load_capture
+    from torm.segmentation.reference import attach_reference, check_background
+
+    cap = attach_reference(capture, load_capture(config.capture.reference_dir))
+    grey = check_background(cap)
+    return cap, {**info, "reference": {**cap.metadata["reference"], "folder": config.capture.reference_dir,
+                                       "background_grey": grey}}
 
 
 def _capture(config: TrialConfig, backend: Any, rgb: bool = False, plugin: Any = None
@@ -123,7 +143,7 @@ def _capture(config: TrialConfig, backend: Any, rgb: bool = False, plugin: Any =
         cap = backend.capture_views(n, list(range(n)), channels)
         return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": list(channels)}
     cap = backend.capture(n)
-    return cap, {"views_captured": len(cap), "views_used": len(cap), "channels": "all"}
+    return _recorded_reference(config, cap, {"views_captured": len(cap), "views_used": len(cap), "channels": "all"})
 
 
 def _calibration(backend: Any) -> Any:

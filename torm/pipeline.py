@@ -91,6 +91,11 @@ class CaptureSettings:
             ``statistical``; see ``sim/depth/README.md``); unknown keys are rejected when the backend is built.
         reference: also capture each view over the empty workspace (a reference pass, ``CameraView.reference_rgb``)
             for reference-mode segmenters; in simulation the objects are hidden for that pass.
+        reference_dir: instead, a recorded reference pass: a capture folder of the empty workspace through the same
+            camera path (``torm capture`` before the objects are placed; the real arm's way). Each trial's views
+            are paired with it by camera pose (refused beyond 2 mm / 0.5 deg, or from another camera, renderer or
+            image size) and it is refused before segmentation when the static background no longer matches (the
+            table, the camera or the light changed; ``torm.segmentation.reference``).
     """
 
     n_views: int = 50
@@ -100,10 +105,14 @@ class CaptureSettings:
     depth_options: dict[str, Any] = field(default_factory=dict)
     pbr: PbrSettings = field(default_factory=PbrSettings)
     reference: bool = False
+    reference_dir: str = ""
 
     def __post_init__(self) -> None:
         if self.n_views < 1 or not self.scale > 0:
             raise ConfigError("capture.n_views must be >= 1 and capture.scale > 0")
+        if self.reference and self.reference_dir:
+            raise ConfigError("capture.reference renders a reference pass and capture.reference_dir reads a recorded "
+                              "one: set one of them")
         if self.renderer not in RENDERERS:
             raise UnknownNameError("capture.renderer", self.renderer, RENDERERS)
         if self.depth_model not in DEPTH_MODELS:
@@ -234,9 +243,9 @@ class TrialConfig:
         if lo.shape != (2,) or not np.all(hi > lo):
             raise ConfigError(f"place_area must be ((x_min, y_min), (x_max, y_max)) with max > min, got "
                               f"{self.place_area}")
-        if self.segmentation.segmenter == "difference" and not self.capture.reference:
+        if self.segmentation.segmenter == "difference" and not (self.capture.reference or self.capture.reference_dir):
             raise ConfigError("segmentation.segmenter=difference reads each view's reference pass: also set "
-                              "capture.reference=true")
+                              "capture.reference=true (rendered, simulation) or capture.reference_dir=DIR (recorded)")
 
 
 def versions() -> dict[str, str]:
@@ -276,6 +285,8 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     }
     if config.capture.reference:
         ctx["reference"] = True
+    if config.capture.reference_dir:
+        ctx["reference"] = f"recorded:{config.capture.reference_dir}"
     from torm.methods import is_builtin
 
     if not is_builtin(config.method):  # a plug-in: which one, which version, with which options
@@ -353,8 +364,7 @@ def make_backend(config: TrialConfig) -> Any:
         return backend
     if config.capture.reference:
         raise ConfigError("capture.reference with the real backend: record the reference pass over the empty "
-                          "workspace with `torm capture` and segment with `torm segment --reference DIR`; the live "
-                          "loop does not fly it yet")
+                          "workspace with `torm capture` and give it as capture.reference_dir=DIR")
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)

@@ -184,22 +184,25 @@ def _instances(fg: np.ndarray, min_area_px: int) -> np.ndarray:
 BACKGROUND_MAX_GREY = 4.0
 
 
-def check_background(capture: Capture, masks_vxhxw: np.ndarray, max_grey: float = BACKGROUND_MAX_GREY,
+def check_background(capture: Capture, masks_vxhxw: np.ndarray | None = None, max_grey: float = BACKGROUND_MAX_GREY,
                      dilate_px: int = 15, blur_sigma_px: float | str = "auto") -> float:
     """Median over views of the median |scene - reference| (grey levels, exposure-normalised, both smoothed by
     ``blur_sigma_px`` as in :func:`difference_map`) outside the objects (``masks`` > 0, dilated by ``dilate_px``);
     raises :class:`CaptureError` above ``max_grey`` (the static background changed since the reference pass).
     Where the dilated masks cover more than half of a view, the median is taken over the whole view: a stale
     reference makes a segmenter that reads it (``difference``) mark most of the table, which would leave nothing to
-    check; the objects, a minority of the pixels, do not move a median. Returns the value."""
+    check; the objects, a minority of the pixels, do not move a median. ``masks_vxhxw`` None: the whole views (a
+    check before segmentation). Returns the value."""
+    if masks_vxhxw is not None and len(masks_vxhxw) != len(capture.views):
+        raise CaptureError(f"{len(masks_vxhxw)} masks for {len(capture.views)} views: give one mask per view")
     vals = []
     k = np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)
-    for v, m in zip(capture.views, masks_vxhxw, strict=True):
+    for i, v in enumerate(capture.views):
         if v.reference_rgb is None or v.rgb is None:
             continue
-        bg = cv2.dilate((np.asarray(m) > 0).astype(np.uint8), k) == 0
         d = difference_map(v.rgb, v.reference_rgb, blur_sigma_px)
-        vals.append(float(np.median(d[bg] if bg.mean() >= 0.5 else d)))
+        bg = None if masks_vxhxw is None else cv2.dilate((np.asarray(masks_vxhxw[i]) > 0).astype(np.uint8), k) == 0
+        vals.append(float(np.median(d if bg is None or bg.mean() < 0.5 else d[bg])))
     if not vals:
         return 0.0
     med = float(np.median(vals))

@@ -1,0 +1,72 @@
+"""A recorded reference pass in the trial loop (issue 43): the real arm's way to read the empty workspace."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from torm import config
+from torm.capture.io import save_capture
+from torm.errors import CaptureError, ConfigError
+from torm.pipeline import TrialConfig, _capture, make_backend, trial_context
+from torm.types import CameraView, Capture
+
+BASE = ["capture.n_views=4", "capture.scale=0.25", "segmentation.segmenter=difference"]
+
+
+def _cfg(*overrides: str) -> TrialConfig:
+    return config.from_dict(TrialConfig, {"scenario": "rw1", "method": "torm"}, overrides=[*BASE, *overrides])
+
+
+def _captured(cfg: TrialConfig) -> tuple[Capture, dict]:
+    backend = make_backend(cfg)
+    try:
+        return _capture(cfg, backend)
+    finally:
+        backend.close()
+
+
+def _recorded(cap: Capture, folder, images=None, shift_m: float = 0.0) -> str:
+    """The rendered reference pass of ``cap`` saved as its own capture of the empty workspace."""
+    views = []
+    for i, v in enumerate(cap.views):
+        T = v.T_world_cam.copy()
+        T[0, 3] += shift_m
+        views.append(CameraView(v.K, T, rgb=v.reference_rgb if images is None else images[i], name=v.name))
+    save_capture(Capture(views=tuple(views), metadata={"renderer": cap.metadata["renderer"],
+                                                       "date": "2026-12-06T18:00:00+00:00"}), folder)
+    return str(folder)
+
+
+def test_a_recorded_reference_is_paired_checked_and_named_and_a_stale_or_moved_one_refused(tmp_path):
+    rendered, _ = _captured(_cfg("capture.reference=true"))
+    folder = _recorded(rendered, tmp_path / "empty")
+    cfg = _cfg(f"capture.reference_dir={folder}")
+    cap, info = _captured(cfg)
+    for v, r in zip(cap.views, rendered.views, strict=True):
+        np.testing.assert_array_equal(v.reference_rgb, r.reference_rgb)  # the recorded pass, view by view
+    ref = info["reference"]
+    assert ref["folder"] == folder and ref["recorded"] == "2026-12-06T18:00:00+00:00"
+    assert 0.0 <= ref["background_grey"] < 1.0  # MuJoCo: the same renderer, nothing but the objects changed
+    assert trial_context(cfg)["reference"] == f"recorded:{folder}"
+
+    # the light moved since the reference was recorded: a brightness ramp across every view
+    ramp = [np.clip(v.reference_rgb * np.linspace(0.6, 1.4, v.width)[None, :, None], 0, 255).astype(np.uint8)
+            for v in rendered.views]
+    stale = _recorded(rendered, tmp_path / "stale", images=ramp)
+    with pytest.raises(CaptureError, match="record a new reference pass"):
+        _captured(_cfg(f"capture.reference_dir={stale}"))
+    moved = _recorded(rendered, tmp_path / "moved", shift_m=0.01)  # flown along another path
+    with pytest.raises(CaptureError, match="10.0 mm.*same path"):
+        _captured(_cfg(f"capture.reference_dir={moved}"))
+
+
+def test_reference_settings_are_validated_with_the_fix():
+    with pytest.raises(ConfigError, match="set one of them"):
+        _cfg("capture.reference=true", "capture.reference_dir=somewhere")
+    with pytest.raises(ConfigError, match="capture.reference_dir=DIR"):
+        _cfg()  # the difference segmenter with no reference pass at all
+    with pytest.raises(ConfigError, match="give it as capture.reference_dir"):
+        make_backend(replace(_cfg("capture.reference=true"), backend="real"))
