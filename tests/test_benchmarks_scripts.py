@@ -312,3 +312,28 @@ def test_reference_background_counts_false_refusals_and_acceptances(tmp_path: Pa
     assert "| difference | auto |" in (tmp_path / "bg.md").read_text()
     with pytest.raises(SystemExit, match="not cached"):
         rb.main([*args[:4], "--stale-offset", "300", *args[4:]])
+
+
+def test_finetune_frames_from_captures_writes_glass_only_masks_the_finetune_reader_accepts(tmp_path: Path) -> None:
+    import numpy as np
+
+    from benchmarks.finetune_frames_from_captures import glass_instances, main
+    from torm.capture.io import save_capture
+    from torm.segmentation.training.finetune import load_labelled_frames
+    from torm.types import CameraView, Capture
+
+    mask = np.zeros((36, 64), np.int32)
+    mask[5:15, 5:15], mask[20:30, 30:40], mask[5:15, 40:50] = 3, 7, 9  # 7 is an opaque cup
+    np.testing.assert_array_equal(np.unique(glass_instances(mask, [3, 9])), [0, 1, 2])
+    assert glass_instances(mask, [3, 9])[25, 35] == 0
+    K = np.array([[40.0, 0, 32], [0, 40.0, 18], [0, 0, 1]])
+    rgb = np.full((36, 64, 3), 90, np.uint8)
+    cap = Capture(views=(CameraView(K, np.eye(4), rgb=rgb, mask=mask), CameraView(K, np.eye(4), rgb=rgb, mask=mask)),
+                  metadata={"transparent_ids": [3, 9]})
+    save_capture(cap, tmp_path / "caps" / "rw1_s300")
+    assert main(["--captures", str(tmp_path / "caps" / "*"), "--out", str(tmp_path / "ft")]) == 0
+    rgbs, masks, files = load_labelled_frames(tmp_path / "ft", input_width=64)
+    assert rgbs.shape == (2, 36, 64, 3) and [f["image"] for f in files] == ["rw1_s300_0.png", "rw1_s300_1.png"]
+    assert set(np.unique(masks[0])) == {0, 1, 2}  # two glass instances, the opaque one is background
+    with pytest.raises(SystemExit, match="no capture folder"):
+        main(["--captures", str(tmp_path / "none*"), "--out", str(tmp_path / "x")])
