@@ -70,3 +70,23 @@ def test_reference_settings_are_validated_with_the_fix():
         _cfg()  # the difference segmenter with no reference pass at all
     with pytest.raises(ConfigError, match="give it as capture.reference_dir"):
         make_backend(replace(_cfg("capture.reference=true"), backend="real"))
+
+
+def test_torm_capture_empty_records_the_pass_a_trial_renders_for_itself(tmp_path, capsys):
+    from torm.capture.io import load_capture
+    from torm.cli import main
+
+    out = tmp_path / "empty"
+    assert main(["capture", "--scenario", "rw1", "--views", "4", "--scale", "0.25", "--empty", "--no-progress",
+                 "--out", str(out)]) == 0
+    capsys.readouterr()
+    empty = load_capture(out)
+    assert not np.any(empty.masks()) and empty.metadata["source"].startswith("empty workspace")
+    rendered, _ = _captured(_cfg("capture.reference=true"))
+    cap, info = _captured(_cfg(f"capture.reference_dir={out}"))
+    for v, r in zip(cap.views, rendered.views, strict=True):  # MuJoCo: the same pixels as the rendered pass
+        np.testing.assert_array_equal(v.reference_rgb, r.reference_rgb)
+    assert info["reference"]["background_grey"] == 0.0 and info["reference"]["recorded"] == empty.metadata["date"]
+    assert main(["capture", "--scenario", "rw1", "--views", "4", "--empty", "--reference", "--out",
+                 str(tmp_path / "x")]) != 0
+    assert "give one of them" in capsys.readouterr().err

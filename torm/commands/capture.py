@@ -5,6 +5,10 @@ Examples::
     torm capture --scenario rw3 --seed 0 --views 50 --scale 0.5 --out runs/rw3_s0
     torm capture --scenario rw3 --scale 0.5 --renderer pbr --spp 16 --out runs/rw3_pbr
     torm capture --scenario rw7 --views 30 --depth-model statistical --set radius=0.6 --out runs/rw7 --record rw7.rrd
+    torm capture --scenario rw3 --scale 0.5 --empty --out runs/rw3_empty   # a reference pass as its own capture
+
+``--empty`` renders the workspace with the objects hidden: what a robot records over the empty table before the
+objects are placed, for ``torm segment --reference DIR`` and a trial's ``capture.reference_dir=DIR``.
 
 Prints a JSON summary (folder, image size, intrinsics, objects, occlusion ratio, timings) on stdout.
 The rig config (``sim.camera_rig.CameraRigConfig``; ``torm config show capture`` lists its keys) can be
@@ -52,6 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--spp", type=int, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
     p.add_argument("--reference", action="store_true",
                    help="also render each view over the empty workspace (reference/; a robot's reference pass)")
+    p.add_argument("--empty", action="store_true",
+                   help="render the workspace with the objects hidden, as its own capture (a recorded reference pass)")
     add_overrides(p, example="radius=0.6", target="capture")
     p.set_defaults(func=run)
 
@@ -72,6 +78,11 @@ def run(args: argparse.Namespace) -> int:
         if flag is not None:
             overrides.append(f"{key}={flag}")
     rig_cfg = cfgmod.load(CameraRigConfig, args.config, overrides)
+    if args.empty and args.reference:
+        from torm.errors import ConfigError
+
+        raise ConfigError("--empty renders the empty workspace itself; --reference adds one to a capture with the "
+                          "objects: give one of them")
     out_dir = check_output_dir(args.out)  # before any work: a bad --out is refused now, not after the capture
     w, h = round(rig_cfg.width * rig_cfg.scale), round(rig_cfg.height * rig_cfg.scale)
     check_fits(TRIAL_BASE_BYTES + capture_bytes(rig_cfg.n_views, w, h), f"{rig_cfg.n_views} views of {w}x{h} px",
@@ -91,10 +102,20 @@ def run(args: argparse.Namespace) -> int:
     with SimCameraRig.from_world(world, rig_cfg, rgb_renderer=rgb_renderer,
                                  depth_model=make_depth_model(args.depth_model), depth_seed=args.seed) as rig:
         t0 = time.perf_counter()
-        cap = rig.capture(progress=args.progress, reference=args.reference)
+        if args.empty:
+            from datetime import datetime, timezone
+
+            from sim.reference_pass import objects_hidden
+
+            with objects_hidden(world):
+                cap = rig.capture(progress=args.progress)
+            cap.metadata.update(source="empty workspace (torm capture --empty)",
+                                date=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+        else:
+            cap = rig.capture(progress=args.progress, reference=args.reference)
         timings["render_s"] = time.perf_counter() - t0
         occ = None
-        if not args.no_occlusion:
+        if not args.no_occlusion and not args.empty:
             t0 = time.perf_counter()
             occ = occlusion_ratio(rig, cap)
             timings["occlusion_s"] = time.perf_counter() - t0
