@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -90,3 +91,52 @@ def test_torm_capture_empty_records_the_pass_a_trial_renders_for_itself(tmp_path
     assert main(["capture", "--scenario", "rw1", "--views", "4", "--empty", "--reference", "--out",
                  str(tmp_path / "x")]) != 0
     assert "give one of them" in capsys.readouterr().err
+
+
+def test_torm_capture_on_the_real_backend_saves_the_trial_poses_and_disables_the_arm(tmp_path, capsys, monkeypatch):
+    """The real code path on the fake rosbridge controller and a fake Modbus gripper; the camera reads a fixed
+    image at the pose the arm reports (no RealSense here)."""
+    from sim.robot_config import load_robot_config
+    from torm.capture.io import load_capture
+    from torm.cli import main
+    from torm.hardware.backend import RealBackend
+    from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
+    from torm.testing.fake_rosbridge import FakeRosbridge
+
+    class Camera:
+        T_flange_cam = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0.05], [0, 0, 1, 0.03], [0, 0, 0, 1]])  # looks along z
+
+        def __init__(self, backend: RealBackend) -> None:
+            self.backend = backend
+
+        def read(self) -> CameraView:
+            inner = self.backend.arm.inner
+            K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+            return CameraView(K, inner.flange_pose(inner.state().q) @ self.T_flange_cam,
+                              rgb=np.full((60, 80, 3), 120, np.uint8))
+
+    monkeypatch.setattr(RealBackend, "camera", property(Camera))
+    rcfg = load_robot_config("inovo_2f85")
+    ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
+    modbus = FakeRobotiqServer(FakeRobotiq())
+    hw = tmp_path / "hw.yaml"
+    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\nwatchdog_s: 2.0\ncommand_log: cmd.jsonl\n"
+                  f"gripper: {{device: '{modbus.url}'}}\ncapture: {{settle_s: 0.0}}\n")
+    try:
+        out = tmp_path / "cell_empty"
+        rc = main(["capture", "--backend", "real", "--hardware-config", str(hw), "--arm-robot", "--views", "3",
+                   "--empty", "--out", str(out)])
+        res = capsys.readouterr()
+        assert rc == 0, res.err[-2000:]
+        summary = json.loads(res.out)
+        assert summary["requested_views"] == 3 and 1 <= summary["views"] <= 3  # the reachable ones (this hand-eye)
+        cap = load_capture(out)
+        assert cap.metadata["backend"] == "real" and cap.metadata["source"].startswith("empty workspace")
+        assert len(cap.metadata["joint_positions"]) == len(cap) == summary["views"]
+        assert cap.metadata["date"] == summary["date"]
+        assert any(m.get("service") == "/robot/disable" for m in ros.msgs(since=0.0))  # stopped on exit
+        assert main(["capture", "--backend", "real", "--scenario", "rw1", "--out", str(tmp_path / "x")]) != 0
+        assert "--scenario: simulation flags" in capsys.readouterr().err
+    finally:
+        ros.close()
+        modbus.close()

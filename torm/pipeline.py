@@ -363,8 +363,9 @@ def make_backend(config: TrialConfig) -> Any:
         backend.reference = bool(config.capture.reference)
         return backend
     if config.capture.reference:
-        raise ConfigError("capture.reference with the real backend: record the reference pass over the empty "
-                          "workspace with `torm capture` and give it as capture.reference_dir=DIR")
+        raise ConfigError("capture.reference with the real backend: record the reference pass over the cleared table "
+                          "with `torm capture --backend real --empty --out DIR` and give it as "
+                          "capture.reference_dir=DIR")
     from torm.hardware import make_real_backend  # optional extra; raises a clear error when absent
 
     return make_real_backend(config)

@@ -10,6 +10,12 @@ Examples::
 ``--empty`` renders the workspace with the objects hidden: what a robot records over the empty table before the
 objects are placed, for ``torm segment --reference DIR`` and a trial's ``capture.reference_dir=DIR``.
 
+``--backend real`` flies the real arm's wrist camera over the capture poses a trial uses and saves what it sees (the
+arm moves only with ``--arm-robot``; it is stopped and disabled on any fault and on exit): run it over the table
+cleared by hand, with ``--empty`` to say so, to record the reference pass of a real cell::
+
+    torm capture --backend real --hardware-config hw.yaml --arm-robot --views 50 --empty --out runs/cell_empty
+
 Prints a JSON summary (folder, image size, intrinsics, objects, occlusion ratio, timings) on stdout.
 The rig config (``sim.camera_rig.CameraRigConfig``; ``torm config show capture`` lists its keys) can be
 given as YAML with ``--config`` and ``--set key=value`` overrides; ``--views/--width/--height/--scale``
@@ -36,7 +42,7 @@ from torm.commands._common import (
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "capture", __doc__,
                    help="render a simulated multi-view capture of a scenario to a folder")
-    p.add_argument("--scenario", required=True, help="scenario name (see `torm scenes list`)")
+    p.add_argument("--scenario", default=None, help="scenario name (see `torm scenes list`); simulation only")
     p.add_argument("--seed", type=seed_arg, default=0, help="layout seed (default 0)")
     p.add_argument("--views", type=count_arg, default=None, help="number of views (default: the rig config's, 50)")
     p.add_argument("--width", type=int, default=None, help="image width in pixels (default 1280)")
@@ -57,12 +63,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--reference", action="store_true",
                    help="also render each view over the empty workspace (reference/; a robot's reference pass)")
     p.add_argument("--empty", action="store_true",
-                   help="render the workspace with the objects hidden, as its own capture (a recorded reference pass)")
+                   help="render the workspace with the objects hidden, as its own capture (a recorded reference pass); "
+                   "with --backend real: the operator cleared the table (recorded in the metadata)")
+    p.add_argument("--backend", choices=("sim", "real"), default="sim",
+                   help="sim renders a scenario (default); real flies the real arm's wrist camera")
+    p.add_argument("--hardware-config", default=None, metavar="FILE", help="hardware YAML for --backend real")
+    p.add_argument("--arm-robot", action="store_true",
+                   help="allow the real arm to move (without it --backend real refuses every motion)")
     add_overrides(p, example="radius=0.6", target="capture")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.backend == "real":
+        return run_real(args)
+    if args.scenario is None:
+        from torm.errors import ConfigError
+
+        raise ConfigError("--scenario is required in simulation (see `torm scenes list`)")
     from torm.runtime import ensure_headless_gl
 
     ensure_headless_gl()
@@ -152,4 +170,55 @@ def run(args: argparse.Namespace) -> int:
         "record": args.record,
         "timings": timings,
     })
+    return 0
+
+
+def run_real(args: argparse.Namespace) -> int:
+    """``--backend real``: the real backend's capture (the poses a trial flies) saved as a capture folder, dated."""
+    import signal
+    import threading
+    from datetime import datetime, timezone
+
+    from torm import config as cfgmod
+    from torm.capture.io import save_capture
+    from torm.commands.trial import _on_sigterm
+    from torm.errors import ConfigError
+    from torm.pipeline import TrialConfig, make_backend
+
+    sim_only = [flag for flag, on in (("--scenario", args.scenario is not None), ("--reference", args.reference),
+                                      ("--renderer", args.renderer != "mujoco"), ("--spp", args.spp is not None),
+                                      ("--depth-model", args.depth_model != "ideal"), ("--width", args.width),
+                                      ("--height", args.height), ("--scale", args.scale), ("--config", args.config),
+                                      ("--set", args.overrides), ("--record", args.record)) if on]
+    if sim_only:
+        raise ConfigError(f"{', '.join(sim_only)}: simulation flags; --backend real records what the camera sees "
+                          "(image size and camera settings come from the hardware config)")
+    if args.robot_config == "none":
+        raise ConfigError("--backend real needs the robot that carries the camera: give --robot-config")
+    out_dir = check_output_dir(args.out)
+    overrides = ["backend=real", f"robot={args.robot_config}", f"capture.n_views={args.views or 50}"]
+    overrides += [f"hardware_config={args.hardware_config}"] if args.hardware_config else []
+    overrides += ["arm_robot=true"] if args.arm_robot else []
+    cfg = cfgmod.from_dict(TrialConfig, {}, overrides, where="torm capture --backend real")
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if main_thread else None  # the stop path runs on SIGTERM
+    try:
+        backend = make_backend(cfg)
+        try:
+            t0 = time.perf_counter()
+            cap = backend.capture(cfg.capture.n_views)
+            render_s = time.perf_counter() - t0
+        finally:
+            backend.close()  # stops and disables the arm
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
+    cap.metadata.update(date=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                        source="empty workspace (cleared by the operator; torm capture --backend real --empty)"
+                        if args.empty else "real capture (torm capture --backend real)")
+    path = save_capture(cap, out_dir)
+    H, W = cap.image_size
+    print_json({"out": str(path.parent), "transforms": str(path), "backend": "real", "views": len(cap),
+                "requested_views": cfg.capture.n_views, "width": W, "height": H, "empty": bool(args.empty),
+                "date": cap.metadata["date"], "timings": {"capture_s": render_s}})
     return 0
