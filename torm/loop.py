@@ -11,10 +11,12 @@ Units: m, s; frames: world = robot base frame, z up.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -95,13 +97,23 @@ def _recorded_reference(config: TrialConfig, capture: Capture, info: dict[str, A
     raise :class:`CaptureError` with the fix. Unchanged without a ``reference_dir``."""
     if not config.capture.reference_dir:
         return capture, info
-    from torm.capture.io import load_capture
     from torm.segmentation.reference import attach_reference, check_background
 
-    cap = attach_reference(capture, load_capture(config.capture.reference_dir))
+    folder = Path(config.capture.reference_dir)
+    stamp = (folder / "transforms.json").stat().st_mtime_ns if (folder / "transforms.json").is_file() else 0
+    cap = attach_reference(capture, _load_reference(str(folder), stamp))
     grey = check_background(cap)
     return cap, {**info, "reference": {**cap.metadata["reference"], "folder": config.capture.reference_dir,
                                        "background_grey": grey}}
+
+
+@functools.lru_cache(maxsize=1)
+def _load_reference(folder: str, stamp: int) -> Capture:
+    """The recorded reference capture, loaded once per folder and file version (``stamp``: the mtime of its
+    ``transforms.json``; a re-perceiving trial captures again before every pick)."""
+    from torm.capture.io import load_capture
+
+    return load_capture(folder)
 
 
 def _capture(config: TrialConfig, backend: Any, rgb: bool = False, plugin: Any = None

@@ -92,7 +92,8 @@ class CaptureSettings:
         reference: also capture each view over the empty workspace (a reference pass, ``CameraView.reference_rgb``)
             for reference-mode segmenters; in simulation the objects are hidden for that pass.
         reference_dir: instead, a recorded reference pass: a capture folder of the empty workspace through the same
-            camera path (``torm capture`` before the objects are placed; the real arm's way). Each trial's views
+            camera path (``torm capture --empty`` in simulation, ``torm capture --backend real --empty`` over
+            the table cleared by hand). Each trial's views
             are paired with it by camera pose (refused beyond 2 mm / 0.5 deg, or from another camera, renderer or
             image size) and it is refused before segmentation when the static background no longer matches (the
             table, the camera or the light changed; ``torm.segmentation.reference``).
