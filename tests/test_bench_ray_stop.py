@@ -20,7 +20,7 @@ from torm.bench.results import read_results
 from torm.errors import BenchmarkError
 from torm.hardware.remote_stop import STOP_TIMEOUT_S
 from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
-from torm.testing.fake_rosbridge import ACTION, FakeRosbridge
+from torm.testing.fake_rosbridge import ACTION, FakeRosbridge, write_cell_yaml
 
 
 def _trial_pids(marker: str) -> list[int]:
@@ -59,9 +59,7 @@ def test_sigkilled_ray_trial_is_cancelled_and_disabled_from_the_driver(local_ray
     rcfg = load_robot_config("inovo_2f85")
     ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
     modbus = FakeRobotiqServer(FakeRobotiq())
-    hw = tmp_path / "hw.yaml"
-    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\nwatchdog_s: 2.0\ncommand_log: cmd.jsonl\n"
-                  f"gripper: {{device: '{modbus.url}'}}\nstream: {{horizon_s: 1.0}}\n")
+    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url, "stream: {horizon_s: 1.0}")
     config = BenchConfig(suite="rw", scenarios=("rw1",), trials=1, engine="ray", workers=1, timeout_s=300.0,
                          trial_fn="bench_fake_trials:real_arm",
                          overrides=("backend=real", f"hardware_config={hw}", "arm_robot=true", "fake.move_s=60"))

@@ -16,7 +16,7 @@ import pytest
 from sim.robot_config import load_robot_config
 from torm.bench.results import read_manifest, read_results
 from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
-from torm.testing.fake_rosbridge import ACTION, FakeRosbridge
+from torm.testing.fake_rosbridge import ACTION, FakeRosbridge, write_cell_yaml
 
 TESTS_DIR = str(Path(__file__).resolve().parent)
 
@@ -27,9 +27,8 @@ def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path, engine):
     ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
     gripper = FakeRobotiq()
     modbus = FakeRobotiqServer(gripper)
-    hw = tmp_path / "hw.yaml"
-    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\nwatchdog_s: 2.0\ncommand_log: cmd.jsonl\n"
-                  f"gripper: {{device: '{modbus.url}'}}\nstream: {{horizon_s: 1.0}}\n")  # robust on a loaded machine
+    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url,
+                         "stream: {horizon_s: 1.0}")  # robust on a loaded machine
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "torm.cli", "bench", "--suite", "rw", "--scenario", "rw1", "--trials", "1",
            "--method", "torm", "--out", str(out), "--trial-fn", "bench_fake_trials:real_arm", "--backend", "real",

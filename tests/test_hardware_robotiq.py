@@ -118,13 +118,12 @@ def test_unarmed_real_backend_activates_nothing_and_moves_no_finger(tmp_path):
 
     from sim.robot_config import load_robot_config
     from torm.hardware import make_real_backend
-    from torm.testing.fake_rosbridge import FakeRosbridge
+    from torm.testing.fake_rosbridge import FakeRosbridge, write_cell_yaml
 
     rcfg = load_robot_config("inovo_2f85")
     fake = FakeRobotiq()
     modbus, ros = FakeRobotiqServer(fake), FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
-    hw = tmp_path / "hw.yaml"
-    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\ncommand_log: cmd.jsonl\ngripper: {{device: '{modbus.url}'}}\n")
+    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url, watchdog_s=None)
     try:
         backend = make_real_backend(SimpleNamespace(robot="inovo_2f85", hardware_config=str(hw), arm_robot=False))
         try:

@@ -101,7 +101,7 @@ def test_torm_capture_on_the_real_backend_saves_the_trial_poses_and_disables_the
     from torm.cli import main
     from torm.hardware.backend import RealBackend
     from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
-    from torm.testing.fake_rosbridge import FakeRosbridge
+    from torm.testing.fake_rosbridge import FakeRosbridge, write_cell_yaml
 
     class Camera:
         T_flange_cam = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0.05], [0, 0, 1, 0.03], [0, 0, 0, 1]])  # looks along z
@@ -119,9 +119,7 @@ def test_torm_capture_on_the_real_backend_saves_the_trial_poses_and_disables_the
     rcfg = load_robot_config("inovo_2f85")
     ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
     modbus = FakeRobotiqServer(FakeRobotiq())
-    hw = tmp_path / "hw.yaml"
-    hw.write_text(f"host: 127.0.0.1\nport: {ros.port}\nwatchdog_s: 2.0\ncommand_log: cmd.jsonl\n"
-                  f"gripper: {{device: '{modbus.url}'}}\ncapture: {{settle_s: 0.0}}\n")
+    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url, "capture: {settle_s: 0.0}")
     try:
         out = tmp_path / "cell_empty"
         rc = main(["capture", "--backend", "real", "--hardware-config", str(hw), "--arm-robot", "--views", "3",

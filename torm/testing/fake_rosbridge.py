@@ -20,6 +20,7 @@ import contextlib
 import json
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 from websockets.sync.server import serve
@@ -203,3 +204,13 @@ class FakeRosbridge:
             if np.max(np.abs(q - last)) > tol_rad:
                 return t
         return hist[0][0]
+
+
+def write_cell_yaml(path: Path, port: int, gripper_url: str, extra: str = "", watchdog_s: float | None = 2.0) -> Path:
+    """A hardware YAML for a fake cell at ``path``: the arm behind this fake rosbridge on loopback (``port``), the
+    gripper a fake Modbus server (``gripper_url``), a ``cmd.jsonl`` command log; ``extra``: more YAML lines (for
+    instance ``stream: {horizon_s: 1.0}``). Returns ``path``."""
+    lines = ["host: 127.0.0.1", f"port: {port}"] + ([f"watchdog_s: {watchdog_s}"] if watchdog_s is not None else [])
+    lines += ["command_log: cmd.jsonl", f"gripper: {{device: '{gripper_url}'}}"] + ([extra] if extra else [])
+    path.write_text("\n".join(lines) + "\n")
+    return path
