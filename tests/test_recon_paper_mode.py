@@ -166,8 +166,19 @@ def test_band_gives_the_full_mesh_and_the_same_gradients(scene, bf16):
     l_b, g_b = loss_and_grads(mv_b, mf_b, s_b, verts_b, surf)
     assert 0 < surf.stats["backprop_verts"] < surf.stats["grad_verts"]  # only the silhouettes' vertices
     assert l_b == pytest.approx(l_ref, rel=1e-5)
+    # The two paths sum the same per-vertex contributions in different orders and through different kernels
+    # (oneDNN picks AVX2, AVX-512 or AMX code paths by CPU), so element-wise agreement to a fixed atol is not a
+    # property of the arithmetic (it failed on a Sapphire Rapids / AMX CPU). What is: a float32 sum of n terms is off
+    # by about sqrt(n) * u * sum|terms| with high probability (Higham & Mary 2019, "A new approach to probabilistic
+    # rounding error analysis"; u = float32 eps), n = the full grid's vertex count. Tested norm-wise, as LAPACK's
+    # tests do, against a threshold of 30 (room for sum|terms| > |sum| where contributions cancel): 2.4e-4 of the
+    # largest gradient at n = 4,410. Measured on AVX-512 (AMD EPYC): ratios <= 0.12; a dropped or doubled
+    # band vertex moves a weight's gradient by a whole contribution, far above that.
+    u = torch.finfo(torch.float32).eps
+    n = grid.n_verts
     for a, b in zip(g_b, g_ref, strict=True):
-        assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
+        ratio = float((a - b).abs().max() / (n ** 0.5 * u * b.abs().max()))
+        assert ratio < 30, f"banded vs full gradients differ by {ratio:.1f} x sqrt(n) u ||g|| (n = {n})"
 
 
 @pytest.mark.parametrize(("split_rows", "bf16"), [(2, "off"), (10**9, "off"), (2, "on")])
