@@ -11,9 +11,17 @@ union ``mask > 0``.
 Model file signature (``model``; default the shipped ``models/learned_seg.onnx``):
     input  ``image`` (1, 3, H, W) float32, RGB in [0, 255] (normalisation is inside the graph), H and W
            multiples of 16 (torm pads bottom/right by edge replication);
-    output ``logits`` (1, C, H, W) float32, C = 2 or 5: channel 0 foreground, 1 boundary band, 2 instance
+    output ``logits`` (1, C, H, W) float32, C = 2, 5 or 6: channel 0 foreground, 1 boundary band, 2 instance
            centre (sigmoid -> prob), 3-4 offset (dy, dx) to the instance's centre in units of
-           ``OFFSET_SCALE`` px of the network input.
+           ``OFFSET_SCALE`` px of the network input, 5 (class-head models, v6) the logit that the pixel's object is
+           transparent rather than opaque.
+
+Classes (a prompt, as the paper's text prompt): ``classes`` names what to segment among :data:`CLASSES`. A class-head
+model finds every object on the table, gives each instance the class its pixels vote for (mean transparent
+probability >= 0.5) and keeps the prompted ones; ``("transparent", "opaque")`` also picks the opaque cup of RW2 and
+RW5, as the paper's prompt does. A model without the class head (v3, v4, v4fast) answers the ``transparent`` prompt
+only (v3 was trained with opaque objects labelled too, so it marks them as well).
+The input size must be a multiple of the model's stride (its card's ``stride``: 32 for v6, else 16).
 
 Each view is resized to ``input_width`` px wide (aspect kept), padded, run, cropped and the probabilities resized
 back to the capture size (bilinear). Unset, ``input_width`` is the width of the frames the model was trained on
@@ -47,13 +55,15 @@ DEFAULT_MODEL = MODELS_DIR / "learned_seg.onnx"
 #: short names of the shipped models (``learned.model``): v3 (the default), v4 (trained for transfer to real photos),
 #: v4ref (reference mode: reads each view with its empty-workspace view), v4fast (v4's recipe at 4 spp and 320 px)
 SHIPPED_MODELS = {"v3": "learned_seg.onnx", "v4": "learned_seg_v4.onnx", "v4ref": "learned_seg_v4ref.onnx",
-                  "v4fast": "learned_seg_v4fast.onnx"}
+                  "v4fast": "learned_seg_v4fast.onnx", "v6": "learned_seg_v6.onnx"}
+#: the classes a prompt may name (``LearnedConfig.classes``); a class-head model's channel 5 separates them
+CLASSES = ("transparent", "opaque")
 INPUTS = (TensorSpec("image", ("image",), (1, None, None, None)),)
 #: input channel counts a model file may have: RGB, or RGB + the reference view's RGB (reference mode)
 IN_CHANNELS = (3, 6)
 OUTPUTS = (TensorSpec("logits", ("logits",), (1, None, None, None)),)
-#: output channel counts a model file may have (without / with the centre head)
-CHANNELS = (2, 5)
+#: output channel counts a model file may have (without / with the centre head / with the class head too)
+CHANNELS = (2, 5, 6)
 STRIDE = 16
 #: offsets are stored in units of this many px (must equal ``training.model.OFFSET_SCALE``; kept here so that
 #: inference does not import torch)
@@ -94,7 +104,8 @@ class LearnedConfig:
     with those of the horizontally flipped view (two network runs per view). ``grouping`` (``boundary``,
     ``centre``, ``hybrid``; centre-head models only for the last two), ``centre_threshold``, ``nms_px`` and
     ``max_vote_px`` (network input px) likewise come from the card when unset
-    (:func:`torm.segmentation.instances.instances_from_maps`). ``core_split_px`` (network input
+    (:func:`torm.segmentation.instances.instances_from_maps`). ``classes``: the prompt, a non-empty subset of
+    :data:`CLASSES` (what to segment). ``core_split_px`` (network input
     pixels, 0 = off): split an instance core at a neck this deep
     (:func:`torm.segmentation.instances.split_cores_at_necks`); off: at 4 px (chosen on val) it gained 0.003 object
     IoU on unseen layouts and 0.015 on held-out shapes for 0.3-0.5 more false positives per view
@@ -115,9 +126,18 @@ class LearnedConfig:
     core_split_px: float = 0.0
     providers: tuple[str, ...] = ()
     threads: int = 0
+    classes: tuple[str, ...] = ("transparent",)
 
     def __post_init__(self) -> None:
         from torm.segmentation.instances import GROUPINGS
+
+        if isinstance(self.classes, str):  # "transparent" or "transparent,opaque" from a command line
+            object.__setattr__(self, "classes", tuple(c.strip() for c in self.classes.split(",") if c.strip()))
+        object.__setattr__(self, "classes", tuple(self.classes))
+        bad = [c for c in self.classes if c not in CLASSES]
+        if bad or not self.classes or len(set(self.classes)) != len(self.classes):
+            raise ConfigError(f"learned.classes {list(self.classes)}: name each class once, among "
+                              f"{', '.join(CLASSES)} (e.g. classes=transparent,opaque)")
 
         if self.grouping is not None and self.grouping not in GROUPINGS:
             raise ConfigError(f"learned.grouping {self.grouping!r}; valid choices: {', '.join(GROUPINGS)}")
@@ -193,7 +213,8 @@ class LearnedSegmenter(Segmenter):
         ch = self.session.session.get_outputs()[0].shape[1]
         if ch not in CHANNELS:
             raise ModelFileError(f"{c.model_path}: output 'logits' has {ch} channels; the learned segmenter's "
-                                 f"signature is (1, 2, H, W) or, with the centre head, (1, 5, H, W)")
+                                 f"signature is (1, 2, H, W), with the centre head (1, 5, H, W), with the class "
+                                 f"head (1, 6, H, W)")
         #: number of output maps (2, or 5 with the centre head)
         self.channels = int(ch)
         cin = self.session.session.get_inputs()[0].shape[1]
@@ -204,6 +225,15 @@ class LearnedSegmenter(Segmenter):
         self.in_channels = int(cin)
         card = c.model_path.with_suffix(".json")
         self.card: dict[str, Any] = json.loads(card.read_text()) if card.is_file() else {}
+        #: the classes this model separates (a prompt may name only these)
+        self.classes_available: tuple[str, ...] = CLASSES if self.channels == 6 else ("transparent",)
+        missing = [k for k in c.classes if k not in self.classes_available]
+        if missing:
+            raise ConfigError(f"learned.classes {list(c.classes)}: {c.model_path.name} has no class head and segments "
+                              f"only {', '.join(self.classes_available)}; drop {', '.join(missing)} from the prompt or "
+                              f"use a class-head model (learned.model=v6, classes {', '.join(CLASSES)})")
+        #: input sizes are padded to multiples of this (the model's card: 32 for an EfficientNet encoder)
+        self.stride = int(self.card.get("stride") or STRIDE)
         #: the width (px) the network reads each view at; 0 = the view's own width
         self.input_width = int(c.input_width) if c.input_width is not None else training_width(self.card)
         post = self.card.get("postprocess", {})
@@ -212,7 +242,7 @@ class LearnedSegmenter(Segmenter):
                                             for k, d in POSTPROCESS_DEFAULTS.items()}
         if self.postprocess["grouping"] is None:
             self.postprocess["grouping"] = "centre" if self.channels == 5 else "boundary"
-        if self.postprocess["grouping"] != "boundary" and self.channels != 5:
+        if self.postprocess["grouping"] != "boundary" and self.channels < 5:
             raise ConfigError(f"learned.grouping {self.postprocess['grouping']!r} needs a model with the centre head "
                               f"(5 output channels); {c.model_path} has {self.channels}: use grouping 'boundary'")
 
@@ -252,7 +282,7 @@ class LearnedSegmenter(Segmenter):
         m = self._maps(rgb)
         if flip_tta if flip_tta is not None else self.postprocess["flip_tta"]:
             f = self._maps(np.ascontiguousarray(rgb[:, ::-1]))[:, :, ::-1]
-            if len(f) == 5:
+            if len(f) >= 5:
                 f[4] = -f[4]
             m = (m + f) / 2
         return m
@@ -261,7 +291,7 @@ class LearnedSegmenter(Segmenter):
         h, w = rgb.shape[:2]
         tw = self.input_width or w
         th = max(int(round(h * tw / w)), 1)
-        ph, pw = -th % STRIDE, -tw % STRIDE
+        ph, pw = -th % self.stride, -tw % self.stride
         parts = []
         for k in range(0, rgb.shape[2], 3):  # RGB (and the reference's RGB): OpenCV works on 3-channel images
             x = np.ascontiguousarray(rgb[..., k:k + 3])
@@ -273,7 +303,7 @@ class LearnedSegmenter(Segmenter):
         inp = x.astype(np.float32).transpose(2, 0, 1)[None]
         logits = self.session.run({"image": inp}, ("logits",))[0][0, :, :th, :tw].astype(np.float32)
         out = _sigmoid(logits)
-        if len(out) == 5:  # offsets in px of the image
+        if len(out) >= 5:  # offsets in px of the image
             out[3] = logits[3] * OFFSET_SCALE * (h / th)
             out[4] = logits[4] * OFFSET_SCALE * (w / tw)
         if (th, tw) != (h, w):
@@ -288,15 +318,18 @@ class LearnedSegmenter(Segmenter):
         maps = self.maps(rgb, reference=reference)
         lin = rgb.shape[1] / (self.input_width or rgb.shape[1])  # image px per network input px
         mask, scores = instances_from_maps(
-            maps, pp["grouping"], pp["fg_threshold"], pp["boundary_threshold"],
+            maps[:5], pp["grouping"], pp["fg_threshold"], pp["boundary_threshold"],
             max(int(round(pp["min_core_px"] * lin ** 2)), 1), int(round(c.min_area_px * lin ** 2)),
             pp["centre_threshold"], max(int(round(pp["nms_px"] * lin)), 0), pp["max_vote_px"] * lin,
             c.core_split_px * lin)
+        labels = ["object"] * len(scores)
+        if len(maps) == 6:  # class head: each instance takes the class its pixels vote for; the prompt filters
+            mask, scores, labels = select_classes(mask, scores, maps[5], c.classes)
         dets = []
-        for i, s in enumerate(scores, start=1):
+        for i, (s, lab) in enumerate(zip(scores, labels, strict=True), start=1):
             ys, xs = np.nonzero(mask == i)
             dets.append(Detection((float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)), s,
-                                  "object", i))
+                                  lab, i))
         return mask, tuple(dets)
 
     def check_domain(self, capture: Capture) -> dict[str, Any]:
@@ -360,9 +393,28 @@ class LearnedSegmenter(Segmenter):
                                 "model_fingerprint": model_fingerprint(self.config.model_path), "domain": domain,
                                 "input_width": self.input_width, "pixel_scale": scale,
                                 "model_renderer": self.card.get("data", {}).get("renderer"),
+                                "classes": list(self.config.classes),
                                 "postprocess": dict(self.postprocess)}
         info.update(score_against_capture(out, capture))
         return SegmentationResult(out, tuple(dets), {"total": time.perf_counter() - t0}, info)
+
+
+def select_classes(mask_hxw: np.ndarray, scores: list[float] | tuple[float, ...], p_transparent_hxw: np.ndarray,
+                   classes: tuple[str, ...]) -> tuple[np.ndarray, list[float], list[str]]:
+    """Keep the instances whose class is in ``classes``: an instance is ``transparent`` when the mean of
+    ``p_transparent`` (probability, (H, W)) over its pixels is >= 0.5, else ``opaque``. Returns the relabelled
+    (H, W) int32 mask (1..M in the input's order), the kept scores and their class names."""
+    keep_ids, keep_scores, names = [], [], []
+    for i, s in enumerate(scores, start=1):
+        on = mask_hxw == i
+        name = CLASSES[0] if on.any() and float(p_transparent_hxw[on].mean()) >= 0.5 else CLASSES[1]
+        if name in classes:
+            keep_ids.append(i)
+            keep_scores.append(float(s))
+            names.append(name)
+    lut = np.zeros(len(scores) + 1, np.int32)
+    lut[keep_ids] = np.arange(1, len(keep_ids) + 1, dtype=np.int32)
+    return lut[mask_hxw], keep_scores, names
 
 
 _SHIPPED: list[LearnedSegmenter] = []

@@ -338,6 +338,22 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
     return path
 
 
+def transparent_maps(mask_nxhxw: np.ndarray, scene_n: np.ndarray, meta: list[dict[str, Any]]) -> np.ndarray:
+    """(N, H, W) uint8: 1 on the pixels of transparent objects, 0 elsewhere (opaque objects and background), from
+    instance masks (value k = the scene's object k) and each scene's ``materials`` (``glass`` / ``opaque``, object
+    order): the target of the class head (segmenter v6). Needs data rendered with ``label_opaque`` true, or every
+    labelled object is glass."""
+    out = np.zeros(mask_nxhxw.shape, np.uint8)
+    for i, (m, sc) in enumerate(zip(mask_nxhxw, scene_n, strict=True)):
+        mats = meta[int(sc)].get("materials")
+        if mats is None:
+            raise SceneError(f"scene {int(sc)} of the data has no 'materials' entry; re-render it with this version")
+        glass = np.zeros(max(int(m.max()), len(mats)) + 1, np.uint8)
+        glass[1:len(mats) + 1] = [1 if x == "glass" else 0 for x in mats]
+        out[i] = glass[m]
+    return out
+
+
 def reference_path(root: Path, split: str, shard: int) -> Path:
     """Where the reference pass of a shard lives: ``<split>/shard_00000.ref.npz`` beside it."""
     return shard_path(root, split, shard).with_suffix(".ref.npz")

