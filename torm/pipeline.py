@@ -1,7 +1,7 @@
 """The closed-loop trial: scenario + seed -> capture -> silhouettes -> reconstruction -> split ->
 grasp planning -> execution of every object -> the paper's success test.
 
-Two parties that never share state (ARCHITECTURE.md, "The loop and the judge"): the decision loop
+Two parties that never share state (docs/architecture.md, "The loop and the judge"): the decision loop
 (:mod:`torm.loop`) sees only what a real robot sees and attempts every object it believes in, phantoms included;
 in simulation the judge (:mod:`sim.judge`) holds ground truth, watches, and writes the rows: one per real object
 (``objects``), one per attempt (``attempts``, with ``phantom_attempt`` for attempts at objects that are not
@@ -12,7 +12,7 @@ captures and reconstructs again before each later pick. The 20 cm translation go
 space. Every outcome is recorded, never raised, except configuration errors; a physics blow-up aborts
 the remaining picks with category ``physics_error``.
 
-Result record (ARCHITECTURE.md): one JSON-ready dict per trial with the resolved config, seeds,
+Result record (docs/architecture.md): one JSON-ready dict per trial with the resolved config, seeds,
 versions, per-stage timings (s), reconstruction metrics and per-object outcomes.
 """
 
@@ -464,7 +464,7 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
     log.info("trial %s seed %d (%s): %d/%d objects picked, %d phantom attempts in %.1f s", config.scenario,
              config.seed, config.method, result["n_success"], result["n_objects"], result["n_phantom_attempts"],
              timings["total"])
-    # The headline first, the resolved config last (ARCHITECTURE.md's trial record, reading order for people).
+    # The headline first, the resolved config last (docs/architecture.md's trial record, reading order for people).
     resolved = result.pop("config")
     return {"summary": trial_summary(result), **result, "config": resolved}
 

@@ -1,6 +1,6 @@
 """Shared data types: camera views, captures, meshes, point clouds, reconstructions and grasps.
 
-These are the data contracts of ``ARCHITECTURE.md``. Units are metres, radians, seconds and
+These are the data contracts of ``docs/architecture.md``. Units are metres, radians, seconds and
 kilograms; the world frame is the robot base frame with z up. Camera poses are ``T_world_cam``
 in the OpenCV convention (x right, y down, z forward). Arrays are validated on construction and
 a :class:`~torm.errors.CaptureError` names the offending field.

@@ -2,7 +2,7 @@
 
 A :class:`DepthModel` turns a :class:`DepthScene` (the exact geometry of one view, from the simulator) into
 the depth image a D455 would report: float32 z-depth in metres along the colour camera's optical axis,
-registered to the colour pixel grid, 0 = no reading (ARCHITECTURE.md data contract). Models are pure
+registered to the colour pixel grid, 0 = no reading (docs/architecture.md data contract). Models are pure
 functions of the scene and a ``numpy.random.Generator``; the rig seeds that generator from the trial seed,
 the capture index and the view index, so a trial is reproducible.
 

@@ -6,7 +6,7 @@ Examples::
     torm methods list --json
 
 A plug-in registers a factory in the entry-point group ``torm.methods`` of its package (see
-``docs/methods.md``, "Add your method"); ``torm trial --set method=NAME`` and ``torm bench --method NAME`` then
+``docs/add_your_method.md``); ``torm trial --set method=NAME`` and ``torm bench --method NAME`` then
 run it like a built-in. Any importable ``package.module:callable`` works as well without installation. Grasp
 planners register in ``torm.planners`` and are chosen with ``--set planner=NAME``.
 """

@@ -85,7 +85,8 @@ def train_ppo(train_rows: list[dict[str, Any]], eval_rows: list[dict[str, Any]],
     """PPO (``MultiInputPolicy``, :data:`PPO_HYPERPARAMETERS`) on the training rows.
 
     Args:
-        train_rows, eval_rows: outcome-table rows (:func:`torm.env.outcome_table.record_layout`).
+        train_rows: outcome-table rows to train on (:func:`torm.env.outcome_table.record_layout`).
+        eval_rows: held-out outcome-table rows, scored during training.
         spaces: the live env's (observation_space, action_space).
         timesteps: PPO steps (one table episode each).
         eval_every: score the deterministic policy on both row sets every this many steps.
