@@ -156,3 +156,29 @@ def test_fixed_poses_are_used_and_checked():
     outside = Scenario(name="outside", objects=("cylinder",), poses=((0.9, 0.0, 0.0),))
     with pytest.raises(SceneError, match="workspace"):
         place_objects(outside, 0)
+
+
+def test_scenario_targets_name_the_classes_the_task_picks():
+    """RW2 and RW5 target the opaque cup as the paper's prompt does; the rest target glass; a bad class is refused."""
+    from sim.scenes.scenario import Scenario, get_scenario
+    from torm.errors import ConfigError
+
+    assert get_scenario("rw2").targets == ("transparent", "opaque") == get_scenario("rw5").targets
+    assert all(get_scenario(f"rw{k}").targets == ("transparent",) for k in (1, 3, 4, 6, 7, 8))
+    with pytest.raises(ConfigError, match="among transparent, opaque"):
+        Scenario(name="x", objects=("cylinder",), targets=("glass",))
+    with pytest.raises(ConfigError, match="among transparent, opaque"):
+        Scenario(name="x", objects=("cylinder",), targets=())
+
+
+def test_a_trial_prompts_a_learned_segmenter_with_its_scenarios_targets(caplog):
+    """Without a class head the prompt stays 'transparent' and a warning names what cannot be picked; an explicit
+    ``classes`` option is left alone."""
+    from torm.methods.builtins import prompt_scenario_targets, segmenter_for
+    from torm.pipeline import SegmentationSettings, TrialConfig
+
+    cfg = TrialConfig(scenario="rw5", segmentation=SegmentationSettings("learned", options={"model": "v4"}))
+    seg = segmenter_for(cfg)
+    assert seg.config.classes == ("transparent",)
+    assert "cannot be prompted for opaque" in caplog.text
+    assert prompt_scenario_targets(seg, "a_recorded_capture") == ("transparent",)

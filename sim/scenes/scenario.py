@@ -33,6 +33,8 @@ SUITES_DIR = Path(__file__).resolve().parent / "suites"
 
 Spacing = Literal["moderate", "dense", "packed"]
 SPACINGS: tuple[str, ...] = ("moderate", "dense", "packed")
+#: classes a scenario's ``targets`` may name (the learned segmenter's prompt vocabulary, ``torm.segmentation.learned``)
+TARGET_CLASSES: tuple[str, ...] = ("transparent", "opaque")
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,9 @@ class Scenario:
     ``poses``: None (seeded random placement) or one ``(x, y, yaw)`` per object, world frame, m and rad.
     ``fixture``: an opaque fixture (``sim.scenes.fixtures``: ``tube_rack``, ``tray``) placed on the table; the first
     ``fixture_objects`` objects stand in it (rack slots, or the tray's inside at the scene's spacing).
+    ``targets``: the classes the task picks (:data:`TARGET_CLASSES`), the prompt an image segmenter with classes is
+    given, as the paper's text prompt: RW2 and RW5 name the opaque cup (``[transparent, opaque]``). Declared by the
+    task, not read from the scene's objects.
     """
 
     name: str
@@ -52,8 +57,14 @@ class Scenario:
     description: str = ""
     fixture: str | None = None
     fixture_objects: int = 0
+    targets: tuple[str, ...] = ("transparent",)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "targets", tuple(self.targets))
+        bad = [t for t in self.targets if t not in TARGET_CLASSES]
+        if bad or not self.targets or len(set(self.targets)) != len(self.targets):
+            raise ConfigError(f"scenario {self.name!r}: targets {list(self.targets)}: name each class once, among "
+                              f"{', '.join(TARGET_CLASSES)}")
         if not self.name:
             raise ConfigError("name: a scenario needs a non-empty name")
         if not self.objects:

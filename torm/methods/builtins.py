@@ -214,7 +214,37 @@ def segmenter_for(config: Any) -> Any:
     if s.segmenter == "noisy":
         opts.setdefault("preset", s.preset)
         opts.setdefault("seed", config.seed)
-    return make_segmenter(s.segmenter, opts or None)
+    seg = make_segmenter(s.segmenter, opts or None)
+    if s.segmenter == "learned" and "classes" not in opts:
+        prompt_scenario_targets(seg, config.scenario)
+    return seg
+
+
+def prompt_scenario_targets(seg: Any, scenario: str) -> tuple[str, ...]:
+    """Give a learned segmenter the scenario's ``targets`` as its prompt of classes (the paper's text prompt names the
+    opaque cup in RW2 and RW5). A model without the class head answers ``transparent`` only: it keeps its prompt and a
+    warning names the classes it cannot pick and the model that can. Returns the prompt in use. A scenario name that
+    is not in the library (a recorded capture) leaves the prompt as it is."""
+    import dataclasses
+    import logging
+
+    from torm.errors import UnknownNameError
+
+    try:
+        from sim.scenes.scenario import get_scenario
+
+        targets = tuple(get_scenario(scenario).targets)
+    except (ImportError, UnknownNameError):
+        return tuple(seg.config.classes)
+    can = tuple(t for t in targets if t in seg.classes_available)
+    if len(can) < len(targets):
+        logging.getLogger(__name__).warning(
+            "scenario %s targets %s, but %s has no class head and cannot be prompted for %s objects (it marks what "
+            "it was trained on; learned.model=v6 picks both classes)", scenario, ", ".join(targets),
+            seg.config.model_path.name, ", ".join(t for t in targets if t not in can))
+    if can and can != tuple(seg.config.classes):
+        seg.config = dataclasses.replace(seg.config, classes=can)
+    return tuple(seg.config.classes)
 
 
 def builtin_method(config: Any, oracle_meshes: Callable[[], dict[int, TriMesh]] | None = None) -> _Builtin:
