@@ -1,4 +1,4 @@
-"""The Ray engine: the same isolated trials as Ray remote tasks (``pip install torm[distributed]``).
+"""The Ray engine: the same isolated trials as Ray remote tasks (``pip install "torm-glass[distributed]"``).
 
 Each task runs :func:`torm.bench.isolate.run_isolated` on whichever node Ray picks, so a trial is a
 fresh worker process there exactly as with the local pool, and the row is built the same way (only

@@ -10,7 +10,7 @@ Policies map an observation (or a table row's) to a candidate index:
 
 :func:`train_ppo` trains on :class:`torm.env.outcome_table.OutcomeTableEnv` (one-step episodes, gamma 0: a
 contextual bandit) and scores the deterministic policy on held-out rows along the way. Stable-Baselines3 is the
-optional ``rl`` extra (``pip install "torm[rl]"``).
+optional ``rl`` extra (``pip install "torm-glass[rl]"``).
 """
 
 from __future__ import annotations
