@@ -95,6 +95,11 @@ SOURCES: dict[str, str] = {
     "latency": (
         "ROS 1 service round trip 10 ms direct, 40 ms through rosbridge (RobotWebTools/rosbridge_suite issue "
         "868); the Inovo is driven through rosbridge (HARDWARE.md)."),
+    "tape_measure": (
+        "a lab measures the table height and places a fixture with a steel tape: EU Measuring Instruments "
+        "Directive 2004/22/EC, Annex MI-008, class II maximum permissible error +-(0.3 + 0.2 L) mm (L in m, rounded "
+        "up: +-0.5 mm up to 1 m) plus half of the 1 mm graduation read by eye (+-0.5 mm): +-1 mm per length; "
+        "a fixture's yaw from two such lengths 0.1 m apart: +-atan(2 x 1 mm / 100 mm) = +-1.15 deg."),
     "joint_tracking": (
         "repeatability r (see 'repeatability') as a per-motion static joint error: N(0, (r / 3 / 1.083 m)^2) "
         "rad per joint (1.083 m = Inovo medium reach, HARDWARE.md)."),
@@ -139,6 +144,9 @@ class MeasuredRanges:
     focal_error: Range = Range(-0.0087, 0.0087, "", "intrinsics")
     principal_point_error: Range = Range(-2.7, 2.7, "px at 1280 px", "intrinsics")
     latency: Range = Range(0.010, 0.040, "s", "latency")
+    table_height_error: Range = Range(-1.0e-3, 1.0e-3, "m", "tape_measure")
+    fixture_position_error: Range = Range(-1.0e-3, 1.0e-3, "m", "tape_measure")
+    fixture_yaw_error: Range = Range(-math.atan(2e-3 / 0.1), math.atan(2e-3 / 0.1), "rad", "tape_measure")
 
     def table(self) -> list[dict[str, Any]]:
         """One row per parameter: name, lo, hi, unit, factor, source text (for docs and reports)."""
@@ -146,7 +154,9 @@ class MeasuredRanges:
                      "grip_force": "grip_force", "hollow_mass_scale": "objects",
                      "hand_eye_translation": "calibration", "hand_eye_rotation": "calibration",
                      "arm_repeatability": "calibration, execution", "focal_error": "calibration",
-                     "principal_point_error": "calibration", "latency": "execution"}
+                     "principal_point_error": "calibration", "latency": "execution",
+                     "table_height_error": "calibration", "fixture_position_error": "calibration",
+                     "fixture_yaw_error": "calibration"}
         out = []
         for f in dataclasses.fields(self):
             r: Range = getattr(self, f.name)
@@ -167,6 +177,8 @@ class MeasuredRanges:
             r: Range = getattr(self, f.name)
             if WORSE[f.name] == "lower":
                 v = r.lo / k
+            elif WORSE[f.name] == "magnitude":  # a signed error: its larger end, k times (the sign kept +)
+                v = max(abs(r.lo), abs(r.hi)) * k
             elif f.name == "hollow_mass_scale":
                 v = 1.0 + (r.hi - 1.0) * k
             else:
@@ -180,6 +192,7 @@ WORSE: dict[str, str] = {
     "pad_friction": "lower", "pad_torsion_lever": "lower", "object_friction": "lower", "grip_force": "lower",
     "hollow_mass_scale": "higher", "hand_eye_translation": "higher", "hand_eye_rotation": "higher",
     "arm_repeatability": "higher", "focal_error": "higher", "principal_point_error": "higher", "latency": "higher",
+    "table_height_error": "magnitude", "fixture_position_error": "magnitude", "fixture_yaw_error": "magnitude",
 }
 
 MEASURED = MeasuredRanges()
@@ -204,6 +217,8 @@ class RealismRecord:
         principal_point_offset_px: reported (cx, cy) offset in px at :data:`NOMINAL_WIDTH_PX` (scaled with the width).
         latency_s: controller latency of the arm's joint targets (s).
         joint_error_std_rad: std of the per-motion static joint tracking error (rad).
+        table_height_error_m: declared table height minus the true one (m): the lab's tape measurement.
+        fixture_error: declared fixture pose minus the true one, (dx, dy, dyaw) in the world (m, m, rad).
     """
 
     profile: str = "ideal"
@@ -222,6 +237,8 @@ class RealismRecord:
     principal_point_offset_px: tuple[float, float] | None = None
     latency_s: float | None = None
     joint_error_std_rad: float | None = None
+    table_height_error_m: float | None = None
+    fixture_error: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -316,6 +333,11 @@ def sample_realism(profile: str, seed: int, hollow: Sequence[bool] = (), factors
                   hand_eye_translation=tuple(float(x) for x in _unit_vector(g) * r.hand_eye_translation.draw(g)),
                   arm_repeatability_m=rep, focal_scale=1.0 + r.focal_error.draw(g),
                   principal_point_offset_px=(r.principal_point_error.draw(g), r.principal_point_error.draw(g)))
+        # the declared calibration's errors: their own stream, so the draws above are those of earlier versions
+        gd = _stream(seed, FACTORS.index("calibration"), 1)
+        kw.update(table_height_error_m=r.table_height_error.draw(gd),
+                  fixture_error=(r.fixture_position_error.draw(gd), r.fixture_position_error.draw(gd),
+                                 r.fixture_yaw_error.draw(gd)))
     if "execution" in active:
         g = _stream(seed, FACTORS.index("execution"))
         kw.update(latency_s=r.latency.draw(g), joint_error_std_rad=rep / 3.0 / ARM_REACH_M)

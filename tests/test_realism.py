@@ -266,3 +266,47 @@ def test_stress_profile_pushes_each_factor_beyond_the_worst_sourced_value():
         WorldSettings(realism="measured", stress=2.0)
     with pytest.raises(ConfigError, match=">= 1"):
         WorldSettings(realism="stress", stress=0.0)
+
+
+def test_declared_calibration_is_measured_with_a_sourced_error_under_measured_and_exact_under_ideal():
+    """Under ``measured`` the table height and a fixture's pose the loop is told differ from the truth by the
+    record's tape-measure draws (within their sourced ranges); under ``ideal`` they equal it. The trial record keeps
+    declared, true and error."""
+    from sim.realism import sample_scenario_realism
+
+    r = MEASURED
+    rec = sample_realism("measured", 4, [False])
+    assert r.table_height_error.contains(rec.table_height_error_m) and rec.table_height_error_m != 0.0
+    dx, dy, dyaw = rec.fixture_error
+    assert r.fixture_position_error.contains(dx) and r.fixture_position_error.contains(dy)
+    assert r.fixture_yaw_error.contains(dyaw)
+    assert math.degrees(r.fixture_yaw_error.hi) == pytest.approx(1.1458, abs=1e-3)
+    # the earlier calibration draws are unchanged by the new ones (their own stream)
+    assert sample_realism("measured", 4, [False], factors=("calibration",)).focal_scale == rec.focal_scale
+
+    def backend(realism: str, seed: int) -> SimBackend:
+        rrec = sample_scenario_realism(realism, "lab4", seed)
+        world = build_world("lab4", seed, realism=rrec)
+        return SimBackend(world, camera_config=CameraRigConfig(n_views=2, scale=0.2), realism=rrec)
+
+    for seed in (0, 1):
+        b = backend("measured", seed)
+        try:
+            cal, truth = b.calibration(), b.calibration_record()
+            rec = b.realism
+            assert truth["table_height_m"]["error"] == pytest.approx(rec.table_height_error_m, abs=1e-12)
+            assert cal.table_height == pytest.approx(truth["table_height_m"]["true"] + rec.table_height_error_m)
+            assert cal.table_height_error == pytest.approx(1e-3)
+            Td, Tt = cal.fixtures[0].T_world_fixture, b.world.fixture.T_world_fixture
+            assert not np.allclose(Td, Tt)
+            np.testing.assert_allclose(Td[:2, 3] - Tt[:2, 3], rec.fixture_error[:2], atol=1e-12)
+            assert truth["fixture"]["error_yaw_rad"] == pytest.approx(rec.fixture_error[2], abs=1e-9)
+        finally:
+            b.close()
+    b = backend("ideal", 0)
+    try:
+        cal, truth = b.calibration(), b.calibration_record()
+        assert cal.table_height == truth["table_height_m"]["true"] and cal.table_height_error == 0.0
+        np.testing.assert_array_equal(cal.fixtures[0].T_world_fixture, b.world.fixture.T_world_fixture)
+    finally:
+        b.close()

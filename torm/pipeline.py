@@ -449,6 +449,8 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
             judge.close()
         if hasattr(backend, "realism_summary") and "realism" in result:
             result["realism"]["applied"] = backend.realism_summary()
+        if hasattr(backend, "calibration_record"):  # judge-side: the declared calibration beside the truth
+            result["calibration"] = backend.calibration_record()
         if recorder is not None:
             recorder.finish(result)
             recorder.close()
