@@ -168,14 +168,16 @@ def table_height(config: TrialConfig, backend: Any, capture: Capture) -> tuple[f
     """The table-top height (m) the loop plans with, and where it came from.
 
     ``config.table == "declared"``: the backend's declared calibration (a lab's measured height, with its stated
-    error); ``"capture"``: fitted to the capture's depth (:func:`torm.capture.table_plane.estimate_table_plane`).
+    error); ``"capture"``: fitted to the capture's depth (:func:`torm.capture.table_plane.estimate_table_plane`),
+    sensor depth where the views have it, with the objects left to RANSAC as outliers: a capture's instance masks
+    are never read (in simulation they are the simulator's truth; the loop's own masks come later).
     """
     cal = _calibration(backend)
     if config.table == "capture":
         from torm.capture.table_plane import estimate_table_plane
 
         try:
-            plane = estimate_table_plane(capture)
+            plane = estimate_table_plane(capture, use_masks=False)
         except CaptureError as exc:
             raise ConfigError(f"table=capture: {exc}; or use table=declared (the cell's declared table height)") \
                 from exc

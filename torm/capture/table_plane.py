@@ -97,10 +97,11 @@ def _pick_channel(capture: Capture, channel: str) -> str:
     return channel
 
 
-def world_points(capture: Capture, channel: str) -> np.ndarray:
+def world_points(capture: Capture, channel: str, use_masks: bool = True) -> np.ndarray:
     """(N, 3) world points (m) of every valid ``channel`` depth pixel of ``capture``, object pixels left out.
 
-    A pixel is valid when its depth is finite and > 0 and, where the view has an instance mask, the mask is 0.
+    A pixel is valid when its depth is finite and > 0 and, with ``use_masks`` and where the view has an instance
+    mask, the mask is 0.
     """
     out = []
     for v in capture.views:
@@ -108,7 +109,7 @@ def world_points(capture: Capture, channel: str) -> np.ndarray:
         if d is None:
             continue
         ok = np.isfinite(d) & (d > 0)
-        if v.mask is not None:
+        if use_masks and v.mask is not None:
             ok &= v.mask == 0
         if not ok.any():
             continue
@@ -131,6 +132,7 @@ def estimate_table_plane(
     max_points: int = 200_000,
     inlier_tol_m: float = 0.003,
     rng: np.random.Generator | None = None,
+    use_masks: bool = True,
 ) -> TablePlane:
     """Fit the dominant near-horizontal plane (the table top) to a capture's metric depth.
 
@@ -147,6 +149,9 @@ def estimate_table_plane(
         max_points: largest number of points fit (a random subset when there are more).
         inlier_tol_m: distance (m) to the plane within which a point is an inlier.
         rng: random generator for subsampling and RANSAC; default ``np.random.default_rng(0)``.
+        use_masks: leave out the pixels the capture's instance masks claim for objects. The decision loop passes
+            False: in simulation those masks are the simulator's truth, which a robot does not have; the objects'
+            points are then RANSAC outliers of the table plane (a tabletop scene is mostly table).
 
     Returns:
         The :class:`TablePlane`; ``height_m`` is taken at the workspace centre when the capture has
@@ -160,7 +165,7 @@ def estimate_table_plane(
     """
     rng = np.random.default_rng(0) if rng is None else rng
     chan = _pick_channel(capture, channel)
-    points_nx3 = world_points(capture, chan)
+    points_nx3 = world_points(capture, chan, use_masks)
     n_valid = len(points_nx3)
     if n_valid < MIN_POINTS:
         raise CaptureError(
