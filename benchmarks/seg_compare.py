@@ -30,20 +30,31 @@ from benchmarks._common import RESULTS, check_tag, context, context_md, md_table
 SPLITS = ("test_layouts", "test_shapes", "test_fixtures")
 
 
-def score(model: str, data: Path, threads: int) -> dict[str, Any]:
-    """Metrics of ``model`` (shipped short name or .onnx path) on every test split rendered in ``data``."""
-    from torm.segmentation.learned import LearnedConfig, LearnedSegmenter, model_fingerprint
-    from torm.segmentation.training.dataset import load_split
+def score(model: str, data: Path, threads: int, classes: str = "transparent") -> dict[str, Any]:
+    """Metrics of ``model`` (shipped short name or .onnx path) on every test split rendered in ``data``.
+
+    ``classes`` ``transparent``: the ground truth keeps the glass objects only (opaque ones become background) and a
+    class-head model is prompted for ``transparent``; ``all``: every labelled object, a class-head model prompted
+    for every class (a model without the head reads as it is)."""
+    import numpy as np
+
+    from torm.segmentation.learned import CLASSES, LearnedConfig, LearnedSegmenter, model_fingerprint
+    from torm.segmentation.training.dataset import load_split, transparent_maps
     from torm.segmentation.training.evaluate import evaluate
 
     seg = LearnedSegmenter(LearnedConfig(model=model, threads=threads))
+    if classes == "all" and seg.classes_available == CLASSES:
+        seg = LearnedSegmenter(LearnedConfig(model=model, threads=threads, classes=CLASSES))
     out: dict[str, Any] = {"model": model_fingerprint(seg.config.model_path), "postprocess": dict(seg.postprocess),
-                           "splits": {}}
+                           "classes": list(seg.config.classes), "splits": {}}
     held = tuple(seg.card.get("held_out_shapes", ()))
     for split in SPLITS:
         if not (data / split).is_dir():
             continue
         views = load_split(data, split)
+        if classes == "transparent":  # glass-only ground truth (a no-op on data rendered with label_opaque false)
+            views["mask"] = np.where(transparent_maps(views["mask"], views["scene"], views["meta"]) > 0,
+                                     views["mask"], 0).astype(views["mask"].dtype)
         t = time.perf_counter()
         r = evaluate(lambda im: seg.segment_image(im)[0], views, held)
         out["splits"][split] = {"views": r["views"], "silhouette_iou": r["silhouette_iou_mean"],
@@ -59,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", default="v3,v4", help="comma-separated shipped short names or .onnx paths")
     ap.add_argument("--tag", required=True, help="writes seg_compare_<tag>.{json,md}")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--classes", default="transparent", choices=("transparent", "all"),
+                    help="ground truth: glass objects only (default) or every labelled object")
     ap.add_argument("--out", default=str(RESULTS), help="result folder")
     ap.add_argument("--note", default="", help="a paragraph for the Markdown file: what is compared and why")
     args = ap.parse_args(argv)
@@ -71,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     setup(args.threads)
     recipe = json.loads((data / "recipe.json").read_text()) if (data / "recipe.json").is_file() else {}
     doc: dict[str, Any] = {"context": context(vars(args)), "data": str(data), "recipe": recipe,
-                           "models": [score(m, data, args.threads) for m in args.models.split(",") if m]}
+                           "classes": args.classes,
+                           "models": [score(m, data, args.threads, args.classes) for m in args.models.split(",") if m]}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / f"seg_compare_{args.tag}.json", doc)
@@ -84,9 +98,12 @@ def main(argv: list[str] | None = None) -> int:
     L = [f"# Learned segmenters on the same rendered test views (`{data.name}`)", "", context_md(doc["context"]), "",
          f"Test splits of `{data}` (data recipe seed {recipe.get('seed', '?')}, renderer weights "
          f"{recipe.get('renderer_weights') or recipe.get('renderer', '?')}, distractor mix {mix}): every model reads "
-         "the same views with its own card's post-processing. Silhouette IoU: union of the instances against the "
-         "union of the glass per view (false positives count); object IoU: best match per (view, GT object with >= "
-         "100 visible px); a miss is object IoU < 0.5.", "",
+         "the same views with its own card's post-processing. Ground truth: "
+         + ("the glass objects (opaque ones are background; a class-head model is prompted for transparent)"
+            if args.classes == "transparent" else "every labelled object (a class-head model prompted for every class)")
+         + ". Silhouette IoU: union of the instances against the union of the ground truth per view (false "
+         "positives count); object IoU: best match per (view, GT object with >= 100 visible px); a miss is object "
+         "IoU < 0.5.", "",
          md_table(["model", "split", "views", "silhouette IoU", "object IoU", "miss rate", "false pos / view",
                    "s / view"], rows)] + ([args.note, ""] if args.note else [])
     (out / f"seg_compare_{args.tag}.md").write_text("\n".join(L) + "\n")
