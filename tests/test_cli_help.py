@@ -124,3 +124,16 @@ def test_config_show_yaml_round_trips_and_keys_are_settable(capsys):
     assert "preset: str = paper" in capsys.readouterr().out
     assert main(["config", "show", "nonsense"]) == 2
     assert "valid choices" in capsys.readouterr().err
+
+
+def test_building_the_parser_imports_no_heavy_package():
+    """``torm --help`` answers without torch, MuJoCo or the scene library (they took 7-12 s to import): every choice
+    list comes from :mod:`torm.vocabulary`. Start-up time itself: ``benchmarks/results/cli_startup.md``."""
+    import subprocess
+    import sys
+
+    probe = ("import sys; from torm.cli import build_parser; build_parser(); "
+             "print(','.join(m for m in ('torch', 'mujoco', 'trimesh', 'mitsuba', 'onnxruntime', 'sim.scenes') "
+             "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "", f"building the parser imported {out}"

@@ -61,18 +61,20 @@ CHAMFER_SAMPLES = 20000
 
 
 #: Image renderers of the simulated capture (``capture.renderer``).
-RENDERERS = ("mujoco", "pbr")
+from torm import vocabulary as _vocab  # noqa: E402  (the shared names, one definition)
+
+RENDERERS = _vocab.RENDERERS
 #: Sensor-depth models of the simulated depth camera (``capture.depth_model``, :mod:`sim.depth`): ``ideal`` is
 #: exact z-depth of every opaque surface with glass invisible (the camera sees straight through it);
 #: ``statistical`` a D455 whose glass pixels go missing / see through / read near the surface with
 #: incidence-dependent probabilities; ``stereo`` an active-stereo D455 simulation (IR dots + SGBM).
-DEPTH_MODELS = ("ideal", "statistical", "stereo")
+DEPTH_MODELS = _vocab.DEPTH_MODELS
 #: Realism profiles of the simulated world (``world.realism``): ``ideal`` = nominal physics, exact
 #: cameras, exact tracking; ``measured`` = contact, grip force, object mass, calibration and execution errors
 #: drawn per trial from sourced ranges (``sim/realism.py``, table in ``sim/REALISM.md``).
-REALISM_PROFILES = ("ideal", "measured", "stress")
+REALISM_PROFILES = _vocab.REALISM_PROFILES
 #: Factor groups of a realism profile (``world.factors``; empty = all of them).
-REALISM_FACTORS = ("contact", "grip_force", "objects", "calibration", "execution")
+REALISM_FACTORS = _vocab.REALISM_FACTORS
 
 
 @dataclass(frozen=True)

@@ -32,9 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = add_parser(subparsers, "bench", __doc__,
                    help="run the closed-loop benchmark grid into a run folder (resumable)")
-    from sim.scenes.scenario import list_suites
-    from torm.pipeline import DEPTH_MODELS, REALISM_PROFILES, RENDERERS
-    from torm.segmentation import SEGMENTERS
+    from torm.vocabulary import DEPTH_MODELS, REALISM_PROFILES, RENDERERS, SEGMENTERS
+    from torm.vocabulary import suite_names as list_suites
 
     p.add_argument("--suite", default="rw", help=f"scenario suite ({', '.join(list_suites())}; default rw)")
     p.add_argument("--scenario", action="append", default=[], metavar="NAME",

@@ -26,7 +26,7 @@ from torm.segmentation.noise import PRESETS, NoiseConfig, NoisyConfig, NoisySegm
 from torm.segmentation.quality import mask_quality
 
 #: registry names; grounded_sam and learned are imported lazily (onnxruntime).
-SEGMENTERS = ("gt", "noisy", "grounded_sam", "learned", "difference")
+from torm.vocabulary import SEGMENTERS  # noqa: E402  (one definition, re-exported)
 
 
 def segmenter_config_class(name: str) -> type:
