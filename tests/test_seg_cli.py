@@ -52,8 +52,10 @@ def test_gt_segment_with_view_checks_and_errors(capture_dir, capsys, tmp_path):
     assert summary["quality"]["silhouette_iou_mean"] == 1.0 and summary["consistency"]["flagged"] == {}
     assert main(["segment", str(d), "--segmenter", "noisy", "--set", "bogus=1", "--out", str(tmp_path / "x")]) == 2
     assert "bogus" in capsys.readouterr().err
-    assert main(["segment", str(d), "--segmenter", "nope", "--out", str(tmp_path / "y")]) == 2
-    assert "valid choices" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error: exit 2, the valid choices listed
+        main(["segment", str(d), "--segmenter", "nope", "--out", str(tmp_path / "y")])
+    assert exc.value.code == 2
+    assert "invalid choice: 'nope' (choose from 'gt', 'noisy'" in capsys.readouterr().err
     assert main(["segment", str(d), "--segmenter", "gt", "--out", str(d)]) == 2
 
 

@@ -50,14 +50,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scale", type=float, default=None, help="scale the image size (e.g. 0.5 -> 640x360)")
     p.add_argument("--out", required=True, help="output capture folder (transforms.json convention)")
     add_robot(p, "inovo_2f85", none_ok=True)
-    p.add_argument("--depth-model", default="ideal", choices=("ideal", "statistical", "stereo"),
+    from torm.vocabulary import DEPTH_MODELS, RENDERERS
+
+    p.add_argument("--depth-model", default="ideal", choices=DEPTH_MODELS,
                    help="sensor-depth model (sim/depth): ideal (glass invisible), statistical, stereo (default ideal)")
     p.add_argument("--no-occlusion", action="store_true", help="skip computing the occlusion ratio")
     p.add_argument("--no-progress", dest="progress", action="store_false",
                    help="no progress bar on stderr (shown by default, like torm bench)")
     p.add_argument("--progress", dest="progress", action="store_true", help=argparse.SUPPRESS)  # old opt-in, kept
     add_record(p, "the capture")
-    p.add_argument("--renderer", choices=("mujoco", "pbr"), default="mujoco",
+    p.add_argument("--renderer", choices=RENDERERS, default="mujoco",
                    help="who renders RGB: MuJoCo's rasteriser or the Mitsuba path tracer (depth and masks: MuJoCo)")
     p.add_argument("--spp", type=int, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
     p.add_argument("--reference", action="store_true",

@@ -43,8 +43,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "reconstruct", __doc__, help="reconstruct per-object meshes from a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--segmenter", choices=("gt", "noisy", "grounded_sam", "learned"), default=None,
-                   help="gt | noisy | grounded_sam | learned (default: the capture's masks)")
+    from torm.vocabulary import SEGMENTERS
+
+    p.add_argument("--segmenter", choices=SEGMENTERS, default=None,
+                   help=f"{' | '.join(SEGMENTERS)} (default: the capture's masks; difference needs the capture's "
+                        "reference views)")
     p.add_argument("--preset", default=None, help="noisy: error preset (default paper)")
     p.add_argument("--seg-config", default=None, help="segmenter config YAML (e.g. ONNX model paths)")
     add_record(p, "the capture and the result")

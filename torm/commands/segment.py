@@ -47,7 +47,9 @@ log = logging.getLogger(__name__)
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = add_parser(subparsers, "segment", __doc__, help="extract per-view instance masks of a capture folder")
     p.add_argument("capture_dir", metavar="CAPTURE_DIR", help="capture folder (transforms.json)")
-    p.add_argument("--segmenter", default="learned",
+    from torm.vocabulary import SEGMENTERS
+
+    p.add_argument("--segmenter", default="learned", choices=SEGMENTERS,
                    help="learned | grounded_sam | gt | noisy | difference (default learned: the shipped model, no "
                         "downloads; grounded_sam needs your ONNX exports; difference needs --reference)")
     p.add_argument("--prompt", default=None, help="grounded_sam text prompt, phrases separated by '.'")

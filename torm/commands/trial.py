@@ -43,14 +43,22 @@ log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from torm.vocabulary import DEPTH_MODELS, METHODS, REALISM_PROFILES, RENDERERS, SEGMENTERS
+
     p = add_parser(sub, "trial", __doc__, help="run one closed-loop grasp trial and print its JSON result")
     p.add_argument("--scenario", default=None, help="scenario name (torm scenes list); default rw3")
     p.add_argument("--seed", type=seed_arg, default=None, help="layout / noise seed (default 0)")
-    p.add_argument("--method", choices=("torm", "depth", "depth_fusion", "oracle"), default=None,
-                   help="perception: torm (reconstruction), depth (single-view depth, symmetric completion), "
-                   "depth_fusion (TSDF fusion of every view's depth), oracle (true meshes)")
-    p.add_argument("--segmenter", choices=("gt", "noisy", "grounded_sam", "learned"), default=None,
+    p.add_argument("--method", default=None, metavar="METHOD",
+                   help=f"perception: a built-in ({', '.join(METHODS)}: torm = reconstruction, depth = single-view "
+                   "depth with symmetric completion, depth_fusion = TSDF fusion of every view's depth, oracle = true "
+                   "meshes), a registered plug-in (torm methods list) or package.module:callable (default torm)")
+    p.add_argument("--segmenter", choices=SEGMENTERS, default=None,
                    help="silhouette source for --method torm (default gt)")
+    p.add_argument("--renderer", choices=RENDERERS, default=None, help="simulated RGB renderer (default mujoco)")
+    p.add_argument("--depth-model", choices=DEPTH_MODELS, default=None,
+                   help="simulated depth camera model (default ideal)")
+    p.add_argument("--realism", choices=REALISM_PROFILES, default=None,
+                   help="realism profile of the simulated world (default ideal for one trial)")
     p.add_argument("--preset", default=None, help="error-model preset for --segmenter noisy (default paper)")
     p.add_argument("--views", type=count_arg, default=None, help="number of views (default 50)")
     p.add_argument("--backend", choices=("sim", "real"), default=None, help="sim (default) or real hardware")
@@ -78,6 +86,8 @@ def trial_config_from_args(args: argparse.Namespace):
         "scenario": args.scenario, "seed": args.seed, "method": args.method, "backend": args.backend,
         "robot": args.robot_config, "segmentation.segmenter": args.segmenter, "segmentation.preset": args.preset,
         "capture.n_views": args.views, "hardware_config": getattr(args, "hardware_config", None),
+        "capture.renderer": getattr(args, "renderer", None), "capture.depth_model": getattr(args, "depth_model", None),
+        "world.realism": getattr(args, "realism", None),
     }
     overrides = [f"{k}={v}" for k, v in flags.items() if v is not None]
     if getattr(args, "re_perceive", False):
