@@ -7,15 +7,15 @@ import argparse
 
 import pytest
 
-from torm import vocabulary as V
+from torm import vocabulary as vocab
 from torm.cli import build_parser
 
 #: flag -> (the shared choices, the commands that take it)
 SHARED = {
-    "--segmenter": (V.SEGMENTERS, ("trial", "bench", "segment", "reconstruct")),
-    "--renderer": (V.RENDERERS, ("trial", "bench", "capture")),
-    "--depth-model": (V.DEPTH_MODELS, ("trial", "bench", "capture")),
-    "--realism": (V.REALISM_PROFILES, ("trial", "bench")),
+    "--segmenter": (vocab.SEGMENTERS, ("trial", "bench", "segment", "reconstruct")),
+    "--renderer": (vocab.RENDERERS, ("trial", "bench", "capture")),
+    "--depth-model": (vocab.DEPTH_MODELS, ("trial", "bench", "capture")),
+    "--realism": (vocab.REALISM_PROFILES, ("trial", "bench")),
 }
 
 
