@@ -146,3 +146,26 @@ def test_suite_draws_scenarios_by_seed_and_overrides_reach_the_trial_config():
         assert drawn[0] == drawn[3] and all(d.startswith("rw") for d in drawn)
     finally:
         env.close()
+
+
+def test_action_mask_names_the_candidates_the_gymnasium_way():
+    """``info["action_mask"]`` at reset and step and ``action_masks()`` (what sb3-contrib's MaskablePPO calls) mark
+    exactly the indices with a candidate; a random policy that samples inside the mask never makes an invalid
+    choice; before reset the mask is empty."""
+    env = TormGraspSelectEnv(scenario="rw1", top_k=4, n_points=512)
+    try:
+        assert env.action_masks().tolist() == [False] * 4
+        obs, info = env.reset(seed=1)
+        mask = info["action_mask"]
+        assert mask.dtype == bool and mask.tolist() == obs["valid"].astype(bool).tolist()
+        assert np.array_equal(env.action_masks(), mask) and mask.any()
+        env._obs["valid"][2:] = 0  # as if only two candidates existed
+        env._grasps = env._grasps[:2]
+        m = env.action_masks()
+        assert m.tolist() == [True, True, False, False]
+        a = int(env.action_space.sample(mask=m.astype(np.int8)))  # gymnasium's masked sampling
+        assert m[a]
+        _, _, _, _, info = env.step(a)
+        assert not info["invalid_choice"] and info["action_mask"].tolist() == m.tolist()
+    finally:
+        env.close()

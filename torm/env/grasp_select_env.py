@@ -231,6 +231,7 @@ class TormGraspSelectEnv(gym.Env):
         self._key: tuple[str, int] | None = None
         self._perceived: tuple[Any, ...] | None = None
         self._grasps: list[Grasp] = []
+        self._obs: dict[str, np.ndarray] | None = None
         self._done = True
 
     # ------------------------------------------------------------------------------------------ properties
@@ -387,9 +388,18 @@ class TormGraspSelectEnv(gym.Env):
             "grip_force_n": self._pick.grip_force, "target_label": target, "n_perceived": len(order),
             "n_candidates": len(self._grasps), "perception_info": dict(pinfo),
             "realism_drawn": realism.as_dict() if realism is not None else {"profile": cfg.realism},
+            "action_mask": self.action_masks(),
         }
         self._done = False
         return self._observation(), info
+
+    def action_masks(self) -> np.ndarray:
+        """(K,) bool: True for the actions that name a candidate grasp (Gymnasium's ``info["action_mask"]``; the
+        method sb3-contrib's ``MaskablePPO`` calls). All False before ``reset`` and when nothing was perceived; an
+        action outside the mask is allowed and ends the episode with reward 0 (``info["invalid_choice"]``)."""
+        if self._obs is None:
+            return np.zeros(self.config.top_k, dtype=bool)
+        return self._obs["valid"].astype(bool)
 
     def step(self, action):
         from sim.judge import PickJudge
@@ -400,7 +410,8 @@ class TormGraspSelectEnv(gym.Env):
             raise ConfigError("call reset() before step(); TormGraspSelect episodes are one step long")
         i = self._check_action(action)
         self._done = True
-        info: dict[str, Any] = {"target_label": self._target, "candidate": i, "invalid_choice": False}
+        info: dict[str, Any] = {"target_label": self._target, "candidate": i, "invalid_choice": False,
+                                "action_mask": self.action_masks()}
         if i >= len(self._grasps):
             info.update(invalid_choice=True, outcome="no_grasp_found", is_success=False)
             return self._observation(), 0.0, True, False, info
