@@ -14,6 +14,18 @@ import torch  # noqa: E402
 
 torch.set_num_threads(max(1, min(2, len(os.sched_getaffinity(0)))))
 
+#: node ids of the slow tier (measured; see the file's header)
+_SLOW = {line.strip() for line in (Path(__file__).parent / "slow_tests.txt").read_text().splitlines()
+         if line.strip() and not line.startswith("#")}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the measured slow tests ``slow``: ``pytest -m "not slow"`` is the quick tier (under 3 minutes on 2 cores),
+    the full suite (CI) runs both."""
+    for item in items:
+        if item.nodeid in _SLOW:
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(scope="module")
 def local_ray():
