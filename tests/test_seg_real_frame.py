@@ -67,3 +67,43 @@ def test_v4_rejects_opaque_look_alikes_beside_glass_on_a_committed_render():
     s3 = union_scores(make_segmenter("learned", {"threads": 1}).segment_image(rgb)[0] > 0, true)
     assert s4["iou"] >= 0.75 and s4["precision"] >= 0.75, s4
     assert s4["precision"] > s3["precision"] + 0.15, (s3, s4)
+
+
+V6 = "v6"
+
+
+def test_v6_photo_trained_features_on_the_real_cleargrasp_frame_beat_v4():
+    """v6 (ImageNet EfficientNet-Lite0 encoder, issue 61) on frame 080, transparent-class prompt, 640 px: measured union
+    IoU 0.814, precision 0.993 on 2026-12-07 (v4 0.62 / 0.85). Floors 0.75 and 0.90; the issue's target is 0.85."""
+    import cv2
+
+    from benchmarks.segmentation_real import K_D435, union_scores
+    from torm.segmentation import make_segmenter
+    from torm.types import CameraView, Capture
+
+    rgb = cv2.imread(str(FRAME / "000000080-transparent-rgb-img.jpg"), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+    true = cv2.imread(str(FRAME / "000000080-mask.png"), cv2.IMREAD_GRAYSCALE) > 127
+    cap = Capture(views=(CameraView(K_D435, np.eye(4), rgb=rgb),))
+    s6 = union_scores(make_segmenter("learned", {"threads": 1, "model": V6}).segment(cap).masks_vxhxw[0] > 0, true)
+    s4 = union_scores(make_segmenter("learned", {"threads": 1, "model": V4}).segment(cap).masks_vxhxw[0] > 0, true)
+    assert s6["iou"] >= 0.75 and s6["precision"] >= 0.90, s6
+    assert s6["iou"] > s4["iou"] + 0.10, (s4, s6)
+
+
+def test_v6_finds_the_glass_ball_of_a_committed_rw5_render():
+    """A PBR render of rw5 (a glass ball beside the opaque cup; tests/data/rw5_pbr_view.md). Measured 2026-12-07 with
+    the transparent prompt: glass IoU 0.676, recall 0.993 (v4 0.394, v3 0.389); its false positives are on the cup,
+    which v6 classes as transparent where it sees it (the opaque class does not work yet: docs, issue 61)."""
+    import cv2
+
+    from benchmarks.segmentation_real import union_scores
+    from torm.segmentation import make_segmenter
+
+    data = Path(__file__).parent / "data"
+    rgb = cv2.imread(str(data / "rw5_pbr_view.png"), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+    gt = cv2.imread(str(data / "rw5_pbr_view_mask.png"), cv2.IMREAD_UNCHANGED)
+    seg = make_segmenter("learned", {"threads": 1, "model": V6})
+    s = union_scores(seg.segment_image(rgb)[0] > 0, gt == 1)
+    assert s["iou"] >= 0.60 and s["recall"] >= 0.95, s
+    both = make_segmenter("learned", {"threads": 1, "model": V6, "classes": ["transparent", "opaque"]})
+    assert (both.segment_image(rgb)[0] > 0).sum() >= (seg.segment_image(rgb)[0] > 0).sum()  # a wider prompt keeps more
