@@ -22,6 +22,8 @@ DEPTH_MODELS: tuple[str, ...] = ("ideal", "statistical", "stereo")
 REALISM_PROFILES: tuple[str, ...] = ("ideal", "measured", "stress")
 #: Factor groups of a realism profile (``world.factors``; empty = all of them).
 REALISM_FACTORS: tuple[str, ...] = ("contact", "grip_force", "objects", "calibration", "execution")
+#: Object classes a segmentation prompt may name (``learned.classes``, a scenario's ``targets``).
+CLASSES: tuple[str, ...] = ("transparent", "opaque")
 #: Benchmark engines (``torm bench --engine``) and rerun recording modes of a bench (``--record``).
 ENGINES: tuple[str, ...] = ("pool", "ray")
 RECORD_MODES: tuple[str, ...] = ("none", "failures", "all")

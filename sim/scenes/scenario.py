@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from sim.scenes.objects import list_objects
+from torm import vocabulary as _vocab
 from torm.config import from_dict, load_yaml
 from torm.errors import ConfigError, UnknownNameError
 
@@ -34,7 +35,7 @@ SUITES_DIR = Path(__file__).resolve().parent / "suites"
 Spacing = Literal["moderate", "dense", "packed"]
 SPACINGS: tuple[str, ...] = ("moderate", "dense", "packed")
 #: classes a scenario's ``targets`` may name (the learned segmenter's prompt vocabulary, ``torm.segmentation.learned``)
-TARGET_CLASSES: tuple[str, ...] = ("transparent", "opaque")
+TARGET_CLASSES: tuple[str, ...] = _vocab.CLASSES
 
 
 @dataclass(frozen=True)

