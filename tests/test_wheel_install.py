@@ -58,3 +58,13 @@ def test_the_built_wheel_installs_in_a_fresh_venv_and_runs_a_smoke_trial(tmp_pat
                 "--set", "capture.n_views=4", "--json"], tmp_path, 900, {"MUJOCO_GL": "egl"})
     record = json.loads(res)
     assert record["scenario"] == "rw1" and record["n_objects"] == 1, {k: record.get(k) for k in ("scenario",)}
+
+
+def test_the_distribution_name_is_the_one_the_code_reads():
+    """``torm.bench.identity`` reads torm's requirements by distribution name: it must be pyproject's."""
+    import re
+
+    from torm.bench.identity import DISTRIBUTION
+
+    name = re.search(r'^name = "([^"]+)"', (ROOT / "pyproject.toml").read_text(), re.M)
+    assert name and name.group(1) == DISTRIBUTION

@@ -63,13 +63,17 @@ def git_state(cwd: str | Path | None = None) -> dict[str, Any]:
             "diff_sha256": hashlib.sha256(diff.stdout).hexdigest() if dirty else None}
 
 
+#: the name torm is installed under (``pyproject.toml``'s ``project.name``; the registry's ``torm`` is another package)
+DISTRIBUTION = "torm-glass"
+
+
 def dependency_versions() -> dict[str, str | None]:
     """Python, torm and every runtime dependency of torm (plus the result-shaping extras) with its version."""
     import torm
 
     out: dict[str, str | None] = {"python": platform.python_version(), "torm": torm.__version__}
     try:
-        requires = metadata.requires("torm") or []
+        requires = metadata.requires(DISTRIBUTION) or []
     except metadata.PackageNotFoundError:
         requires = []
     for req in requires:
