@@ -59,7 +59,7 @@ def test_sigkilled_ray_trial_is_cancelled_and_disabled_from_the_driver(local_ray
     rcfg = load_robot_config("inovo_2f85")
     ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
     modbus = FakeRobotiqServer(FakeRobotiq())
-    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url, "stream: {horizon_s: 1.0}")
+    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url, horizon_s=1.0)
     config = BenchConfig(suite="rw", scenarios=("rw1",), trials=1, engine="ray", workers=1, timeout_s=300.0,
                          trial_fn="bench_fake_trials:real_arm",
                          overrides=("backend=real", f"hardware_config={hw}", "arm_robot=true", "fake.move_s=60"))

@@ -27,8 +27,7 @@ def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path, engine):
     ros = FakeRosbridge(rcfg.arm.home_q, tuple(rcfg.arm.joints))
     gripper = FakeRobotiq()
     modbus = FakeRobotiqServer(gripper)
-    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url,
-                         "stream: {horizon_s: 1.0}")  # robust on a loaded machine
+    hw = write_cell_yaml(tmp_path / "hw.yaml", ros.port, modbus.url, horizon_s=1.0)
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "torm.cli", "bench", "--suite", "rw", "--scenario", "rw1", "--trials", "1",
            "--method", "torm", "--out", str(out), "--trial-fn", "bench_fake_trials:real_arm", "--backend", "real",
