@@ -151,11 +151,26 @@ def reach_report(rcfg: RobotConfig, bounds_2x3: np.ndarray, table_height: float 
     return _cached(rcfg, bounds, float(table_height), tuple(float(h) for h in heights), int(n_xy))
 
 
+def base_in_box(base_xyz: tuple[float, float, float], bounds_2x3: np.ndarray) -> str:
+    """Where the arm base's footprint overlaps the workspace box in x-y: ``""`` when it does not, else a description
+    (``"x 0.33..0.77 m and y -0.22..0.22 m contain it"``). ``base_xyz``: (3,) m world; ``bounds_2x3``: (2, 3) m."""
+    lo, hi = np.asarray(bounds_2x3, float)
+    x, y = float(base_xyz[0]), float(base_xyz[1])
+    if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]:
+        return f"x {lo[0]:.2f}..{hi[0]:.2f} m and y {lo[1]:.2f}..{hi[1]:.2f} m contain it"
+    return ""
+
+
 def require_reach(rcfg: RobotConfig, bounds_2x3: np.ndarray, min_share: float, table_height: float = 0.0,
                   where: str | None = None) -> ReachReport:
     """:func:`reach_report`, raising SceneError naming ``base_pose`` when the share is below ``min_share``."""
     rep = reach_report(rcfg, bounds_2x3, table_height)
     where = where or f"the robot.yaml of {rcfg.name!r}"
+    overlap = base_in_box(rep.base_position, bounds_2x3)
+    if overlap:
+        log.warning("robot %s: its base at (%.2f, %.2f) m lies inside the workspace box (%s); objects placed there "
+                    "would stand in the arm's base; move base_pose in %s", rcfg.name, rep.base_position[0],
+                    rep.base_position[1], overlap, where)
     if rep.share < min_share:
         raise SceneError(f"{rep.summary()}, below the {min_share * 100:.0f} % needed; {rep.advice(where)}")
     if rep.share < 1.0:
@@ -163,3 +178,39 @@ def require_reach(rcfg: RobotConfig, bounds_2x3: np.ndarray, min_share: float, t
     else:
         log.info("%s", rep.summary())
     return rep
+
+
+def check_transit_height(rcfg: RobotConfig, bounds_2x3: np.ndarray, transit_height: float, table_height: float = 0.0,
+                         key: str = "pick.transit_height") -> float:
+    """Refuse a transit height (m, world z) at which the arm reaches no point above the workspace box.
+
+    The pick moves above each pre-grasp at ``transit_height`` (:class:`torm.execution.pick_config.PickConfig`); at a
+    height the arm cannot reach pointing down every object would be reported "unreachable" instead of the
+    configuration being wrong. Checks a 3 x 3 grid over the box at that height (:func:`reach_report`); 0 disables
+    the transit and passes.
+
+    Returns:
+        the share of the grid reached (1.0 when ``transit_height`` is 0).
+
+    Raises:
+        ConfigError: naming ``key``, the value, the arm's reach and the fix, when no grid point is reached.
+    """
+    from torm.errors import ConfigError
+
+    if transit_height <= 0:
+        return 1.0
+    b = np.asarray(bounds_2x3, float)
+    origin, reach = max_reach(rcfg.robot_model(), rcfg)
+    rep = reach_report(rcfg, b, table_height, heights=(float(transit_height) - table_height,), n_xy=3)
+    if rep.share == 0.0:
+        centre = np.array([0.5 * (b[0, 0] + b[1, 0]), 0.5 * (b[0, 1] + b[1, 1])])
+        horiz = float(np.linalg.norm(centre - origin[:2]))
+        top = origin[2] + np.sqrt(max(reach**2 - horiz**2, 0.0)) if np.isfinite(reach) else float("inf")
+        raise ConfigError(
+            f"{key}={transit_height:g} m: the {rcfg.name} arm reaches no point above the workspace box at that height "
+            f"with the gripper pointing down (its links stretch at most to z = {top:.2f} m over the box centre); "
+            f"give a lower {key} (default 0.25) or 0 to move straight to each pre-grasp")
+    if rep.share < 1.0:
+        log.warning("%s=%.3f m: the arm reaches %.0f %% of the workspace box at that height; picks below the "
+                    "unreached part will be unreachable", key, transit_height, 100 * rep.share)
+    return rep.share

@@ -266,6 +266,7 @@ def test_retry_failed_replaces_a_crashed_row_and_keeps_it_as_history(tmp_path):
     assert run_benchmark(cfg, out, progress=False)["ran"] == 0  # a plain resume keeps the crashed row
     s = run_benchmark(cfg, out, progress=False, retry="failed")
     assert s["retried"] == crashed and s["ran"] == 1
+    assert s["history_rows"] == 1  # the crashed row is history now, counted in the summary of the retry
     res = read_results(out / "results.jsonl")
     new = {r["key"]: r for r in res.rows}[crashed[0]]
     assert new["status"] == "ok" and new["attempt"] == 2 and new["retry_of"]["status"] == "crashed"
@@ -274,3 +275,16 @@ def test_retry_failed_replaces_a_crashed_row_and_keeps_it_as_history(tmp_path):
     assert run_benchmark(cfg, out, progress=False, retry="failed")["ran"] == 0  # nothing failed any more
     with pytest.raises(Exception, match="retry"):
         run_benchmark(cfg, out, progress=False, retry="everything")
+
+
+def test_ray_that_cannot_start_is_a_named_error_with_the_fix():
+    from torm.bench.ray_engine import _init_ray
+    from torm.errors import BenchmarkError
+
+    class NoStore:
+        def init(self, **kw):
+            raise OSError("[Errno 12] Cannot allocate memory: mmap of the object store failed")
+
+    with pytest.raises(BenchmarkError, match=r"Ray could not start a local Ray with 2 worker\(s\).*"
+                                             r"RAY_DEFAULT_OBJECT_STORE_MAX_MEMORY_BYTES.*--engine pool"):
+        _init_ray(NoStore(), None, 2)

@@ -112,3 +112,19 @@ def test_robot_collision_checker_flags_folded_wrists_and_the_table(robot):
     assert plan is None and idx == -1 and "table" in failed[0][1]
     plan, _, _ = plan_first_reachable([g], ik, tool, robot.arm.home_q, np.array([0.0, 1.0]), PickConfig())
     assert plan is not None  # without the check IK alone accepts it
+
+
+def test_ik_solutions_stay_inside_the_joint_limits_by_the_margin():
+    """A target whose exact solution puts joint 2 on its limit: the solution stays IK_LIMIT_MARGIN_RAD / 2 inside
+    (the safety layer refuses any joint beyond its limit, by any amount), and the residual says how far the TCP is."""
+    from torm.execution.ik import IK_LIMIT_MARGIN_RAD, IKSolver
+
+    rcfg = load_robot_config("inovo_2f85")
+    ik = IKSolver(rcfg.robot_model(), tuple(rcfg.arm.joints), rcfg.arm.tcp_site)
+    lo, hi = ik.joint_ranges()
+    q_edge = np.array(rcfg.arm.home_q, float)
+    q_edge[1] = hi[1]  # on the upper limit of j2
+    target = ik.forward(q_edge)
+    res = ik.solve(target, np.array(rcfg.arm.home_q, float))
+    assert np.all(res.q <= hi - 0.5 * IK_LIMIT_MARGIN_RAD + 1e-12) and np.all(res.q >= lo + 0.5 * IK_LIMIT_MARGIN_RAD)
+    np.testing.assert_allclose(ik.forward(res.q)[:3, 3], target[:3, 3], atol=res.pos_err + 1e-9)

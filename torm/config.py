@@ -10,7 +10,11 @@ dataclasses, and applies two rules to every config without the config having to 
 - finiteness: every ``float`` field (also inside tuples and optionals) refuses NaN and +-inf. A field
   that may be infinite says so with the annotated type :data:`InfFloat` (``Annotated[float,
   ALLOW_INF]``); it still refuses NaN. :func:`check_finite` applies the same rule to an instance built
-  directly in Python (call it from ``__post_init__``).
+  directly in Python (call it from ``__post_init__``);
+- ranges: a number field annotated ``Annotated[int, Range(1, 1 << 18, "why")]`` refuses values outside
+  ``[lo, hi]`` with the reason, in both paths. Every size and iteration count carries an upper bound this way,
+  so an absurd value (``grasp.n_samples=1e12``) is a named error before any work starts, not an
+  out-of-memory kill or a hang; :func:`bounded_fields` lists them (docs and the bad-input tests read it).
 
 >>> from dataclasses import dataclass
 >>> @dataclass(frozen=True)
@@ -51,6 +55,55 @@ class _AllowInf:
 ALLOW_INF = _AllowInf()
 #: A float config field that may be infinite (e.g. "no limit"); NaN is still refused.
 InfFloat = Annotated[float, ALLOW_INF]
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """Marker in ``Annotated[int | float, Range(lo, hi, why)]``: the field must lie in ``[lo, hi]``.
+
+    Attributes:
+        lo: smallest valid value (None: no lower bound).
+        hi: largest valid value (None: no upper bound).
+        why: what the bound protects, for the error message (e.g. ``"~48 B per point per object"``).
+    """
+
+    lo: float | None = None
+    hi: float | None = None
+    why: str = ""
+
+    def check(self, value: float, where: str) -> None:
+        """Raise ConfigError naming ``where`` when ``value`` is outside ``[lo, hi]`` (None and bools pass)."""
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+            return
+        if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
+            lo = "-inf" if self.lo is None else f"{self.lo:g}"
+            hi = "inf" if self.hi is None else f"{self.hi:g}"
+            why = f" ({self.why})" if self.why else ""
+            raise ConfigError(f"{where}={value:g} is outside its valid range [{lo}, {hi}]{why}; give a value in range")
+
+
+def _range_of(tp: Any) -> Range | None:
+    """The :class:`Range` inside ``Annotated[...]`` (also within ``X | None``), else None."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return next((r for r in map(_range_of, typing.get_args(tp)) if r is not None), None)
+    if typing.get_origin(tp) is Annotated:
+        return next((m for m in typing.get_args(tp)[1:] if isinstance(m, Range)), None)
+    return None
+
+
+def bounded_fields(cls: type, prefix: str = "") -> dict[str, Range]:
+    """Every field of the config dataclass ``cls`` (nested configs too) that carries a :class:`Range`, by dotted
+    path (``{"reconstruction.points_per_object": Range(1, 262144, ...)}`` for the trial config)."""
+    out: dict[str, Range] = {}
+    hints = typing.get_type_hints(cls, include_extras=True)
+    for f in dataclasses.fields(cls):
+        tp = hints.get(f.name, Any)
+        base = _annotated(tp)[0]
+        if dataclasses.is_dataclass(base) and isinstance(base, type):
+            out.update(bounded_fields(base, f"{prefix}{f.name}."))
+        elif (r := _range_of(tp)) is not None:
+            out[f"{prefix}{f.name}"] = r
+    return out
 
 
 class ConfigLoader(yaml.SafeLoader):
@@ -212,7 +265,8 @@ def _annotated(tp: Any) -> tuple[Any, bool]:
 
 
 def check_finite(obj: Any, where: str = "") -> None:
-    """Refuse NaN / inf in every float field of the dataclass instance ``obj`` (nested configs too).
+    """Refuse NaN / inf in every float field of the dataclass instance ``obj`` (nested configs too), and values
+    outside a field's :class:`Range`.
 
     The rule of :func:`from_dict` for instances built directly in Python: call it from a top-level
     config's ``__post_init__``. Fields typed :data:`InfFloat` may be infinite; ``Any``/``dict`` fields
@@ -226,6 +280,8 @@ def check_finite(obj: Any, where: str = "") -> None:
 
 
 def _check_value(tp: Any, value: Any, where: str) -> None:
+    if (rng := _range_of(tp)) is not None:
+        rng.check(value, where)
     tp, allow_inf = _annotated(tp)
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -245,6 +301,14 @@ def _check_value(tp: Any, value: Any, where: str) -> None:
 
 
 def _coerce(tp: Any, value: Any, where: str) -> Any:
+    rng = _range_of(tp)
+    out = _coerce_type(tp, value, where)
+    if rng is not None:
+        rng.check(out, where)
+    return out
+
+
+def _coerce_type(tp: Any, value: Any, where: str) -> Any:
     tp, allow_inf = _annotated(tp)
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)

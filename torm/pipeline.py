@@ -246,10 +246,29 @@ class TrialConfig:
         if lo.shape != (2,) or not np.all(hi > lo):
             raise ConfigError(f"place_area must be ((x_min, y_min), (x_max, y_max)) with max > min, got "
                               f"{self.place_area}")
+        self._check_success_is_reachable()
+        if self.backend == "sim":  # a misspelt scenario is refused here, not after the backend started
+            from sim.scenes.scenario import get_scenario
+
+            get_scenario(self.scenario)
         if self.segmentation.segmenter == "difference" and not (self.capture.reference or self.capture.reference_dir):
             raise ConfigError("segmentation.segmenter=difference reads each view's reference pass: also set "
                               "capture.reference=true (rendered, simulation) or capture.reference_dir=DIR (recorded)")
 
+
+    def _check_success_is_reachable(self) -> None:
+        """The success test asks for no more than the pick does: a success criterion beyond the commanded motion
+        fails every trial (a 1e9 m translation judged as arm tracking errors); ConfigError naming both keys."""
+        pick, ok = self.pick, self.success
+        commanded_lift = pick.lift_height + pick.lift_margin
+        if ok.translation > pick.translate_distance + ok.height_tolerance:
+            raise ConfigError(f"success.translation={ok.translation:g} m is more than the pick moves the object "
+                              f"sideways (pick.translate_distance={pick.translate_distance:g} m): no trial could "
+                              "succeed; lower success.translation or raise pick.translate_distance with it")
+        if ok.lift_height > commanded_lift + ok.height_tolerance:
+            raise ConfigError(f"success.lift_height={ok.lift_height:g} m is more than the pick lifts "
+                              f"(pick.lift_height + pick.lift_margin = {commanded_lift:g} m): no trial could "
+                              "succeed; lower success.lift_height or raise pick.lift_height with it")
 
 def versions() -> dict[str, str]:
     """Versions of the packages that shape a result."""
@@ -417,6 +436,12 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
             recorder = TrialRecorder(record) if isinstance(record, (str, Path)) else record
             _attach_recorder(recorder, backend)
         check_grip_force(config.pick.grip_force, backend.gripper)  # a configured force the gripper cannot command
+        world = getattr(backend, "world", None)
+        if getattr(world, "robot_config", None) is not None:  # simulation: the arm and the box are known
+            from sim.robot_reach import check_transit_height
+
+            check_transit_height(world.robot_config, world.workspace_bounds, config.pick.transit_height,
+                                 world.table_height)
         realism = getattr(backend, "realism", None)
         result["realism"] = realism.as_dict() if realism is not None else {"profile": config.world.realism}
         if realism is not None and realism.grip_force_n is not None:  # the drawn pad force is what the pick requests

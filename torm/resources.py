@@ -30,6 +30,10 @@ log = logging.getLogger(__name__)
 TRIAL_BASE_BYTES = 1 << 30
 #: Memory per captured pixel through capture, segmentation and reconstruction (bytes; measured ~21).
 CAPTURE_BYTES_PER_PIXEL = 32
+#: Peak memory of the antipodal grasp planner per (object x contact sample x approach angle x depth) (bytes):
+#: tracemalloc peaks of 670-1230 B (the upper end at the default sizes, where a fixed ~16 MB dominates), two
+#: 2,048-32,768-point cylinders, 256-2,048 samples, 16-64 angles, 4 depths, 2026-12-07.
+GRASP_BYTES_PER_CANDIDATE = 1280
 #: Full-resolution image size of the simulated camera (pixels, width x height); ``capture.scale`` scales both.
 CAMERA_FULL_SIZE = (1280, 720)
 
@@ -66,6 +70,12 @@ def trial_bytes(n_views: int, scale: float) -> int:
     return TRIAL_BASE_BYTES + capture_bytes(n_views, w, h)
 
 
+def grasp_bytes(n_objects: int, n_samples: int, n_angles: int, n_depths: int) -> int:
+    """Estimated peak memory (bytes) of planning grasps for ``n_objects`` objects with ``n_samples`` contacts,
+    ``n_angles`` approach angles and ``n_depths`` depths each (:data:`GRASP_BYTES_PER_CANDIDATE`)."""
+    return int(n_objects) * int(n_samples) * int(n_angles) * int(n_depths) * GRASP_BYTES_PER_CANDIDATE
+
+
 def gib(n_bytes: float) -> str:
     """``n_bytes`` as a short human-readable size (``'1.5 GiB'``, ``'2.3e+06 GiB'``)."""
     g = n_bytes / (1 << 30)
@@ -99,5 +109,6 @@ def check_trial_fits(n_views: int, scale: float, available: int | None = None) -
                "use fewer views (paper: 50) or a smaller capture.scale (default 0.5)", available)
 
 
-__all__ = ["CAMERA_FULL_SIZE", "CAPTURE_BYTES_PER_PIXEL", "TRIAL_BASE_BYTES", "available_memory_bytes",
-           "capture_bytes", "capture_size", "check_fits", "check_trial_fits", "gib", "trial_bytes"]
+__all__ = ["CAMERA_FULL_SIZE", "CAPTURE_BYTES_PER_PIXEL", "GRASP_BYTES_PER_CANDIDATE", "TRIAL_BASE_BYTES",
+           "available_memory_bytes", "capture_bytes", "capture_size", "check_fits", "check_trial_fits", "gib",
+           "grasp_bytes", "trial_bytes"]

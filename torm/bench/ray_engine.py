@@ -95,11 +95,20 @@ def _init_ray(ray: Any, address: str | None, workers: int) -> None:
     """``ray.init`` that keeps torm's SIGTERM handler (Ray replaces it with one that exits at once)."""
     main = threading.current_thread() is threading.main_thread()
     previous = signal.getsignal(signal.SIGTERM) if main else None
-    if address:
-        check_address(address)
-        ray.init(address=address, log_to_driver=False)
-    else:
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    try:
+        if address:
+            check_address(address)
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    except BenchmarkError:
+        raise
+    except Exception as exc:  # the raylet or the GCS did not come up: Ray's own traceback helps nobody
+        where = f"the Ray cluster at {address!r}" if address else f"a local Ray with {workers} worker(s)"
+        raise BenchmarkError(
+            f"Ray could not start {where} ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}). "
+            "Under a memory limit the object store cannot be mapped: set RAY_DEFAULT_OBJECT_STORE_MAX_MEMORY_BYTES "
+            "(e.g. 200000000) or give fewer --workers; or run with --engine pool") from exc
     if main and previous is not None:
         signal.signal(signal.SIGTERM, previous)
 

@@ -236,10 +236,12 @@ def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest:
     bar = _progress_bar(len(grid), n_done, progress)
     status = "interrupted"
     rows = _engine_rows(config, pending, job)
+    moved_to_history = 0  # old rows a retry superseded in this session
     try:
         for row in rows:
             old = by_key.get(row["key"])
             if old is not None:  # a retry: the next attempt, the old row stays in the file as history
+                moved_to_history += 1
                 row["attempt"] = attempt(old) + 1
                 row["retry_of"] = {"status": old.get("status"), "failure": old.get("failure"),
                                    "session": (old.get("run") or {}).get("session")}
@@ -272,7 +274,7 @@ def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest:
     return {"out": str(out), "trials_in_grid": len(grid), "already_done": n_done, "retried": retried,
             "ran": session["trials_run"], "failed_trials": failed, "objects": n_obj, "objects_success": n_ok,
             "success_rate": n_ok / n_obj if n_obj else None, "failure_categories_this_session": categories,
-            "repairs": repairs, "history_rows": len(existing.history), "session": session["id"]}
+            "repairs": repairs, "history_rows": len(existing.history) + moved_to_history, "session": session["id"]}
 
 
 def _engine_rows(config: BenchConfig, pending: list[TrialSpec], job: TrialJob) -> Iterator[dict[str, Any]]:

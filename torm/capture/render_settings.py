@@ -8,7 +8,9 @@ render-cache key (see ``sim.render.cache``): change one and cached images are ne
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
+from torm.config import Range, check_finite
 from torm.errors import ConfigError, UnknownNameError
 
 #: Mitsuba variants: ``auto`` = ``llvm_ad_rgb`` when a usable libLLVM (>= 16) is found, else ``scalar_rgb``
@@ -55,9 +57,9 @@ class PbrSettings:
         cache: read and write the on-disk render cache (``TORM_CACHE_DIR``, default ``~/.cache/torm``).
     """
 
-    spp: int = 16
-    max_depth: int = 8
-    rr_depth: int = 5
+    spp: Annotated[int, Range(1, 65_536, "samples per pixel; 16 is the default")] = 16
+    max_depth: Annotated[int, Range(-1, 1024, "bounces; -1 = unbounded")] = 8
+    rr_depth: Annotated[int, Range(1, 1024, "bounces before Russian roulette")] = 5
     integrator: str = "glass_path"
     sampler: str = "ldsampler"
     denoise: str = "bilateral"
@@ -69,6 +71,7 @@ class PbrSettings:
     cache: bool = True
 
     def __post_init__(self) -> None:
+        check_finite(self, "capture.pbr")  # ranges and NaN / inf (torm.config), also when built in Python
         if self.spp < 1:
             raise ConfigError(f"capture.pbr.spp must be >= 1 sample per pixel, got {self.spp}")
         if self.max_depth != -1 and self.max_depth < 1:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import re
 import sys
@@ -102,6 +103,38 @@ def seed_arg(text: str) -> int:
 def count_arg(text: str) -> int:
     """argparse ``type`` of a count (``--views``, ``--workers``, ``--trials``): a positive integer."""
     return _int_at_least(text, 1, "is not a count", "give a number >= 1")
+
+
+#: Largest image side accepted by a pixel flag (px): twice the widest sensor torm models (a D455's 1280 px).
+MAX_IMAGE_SIDE_PX = 8192
+
+
+def pixels_arg(text: str) -> int:
+    """argparse ``type`` of an image side (``--width``, ``--height``): an integer in [1, MAX_IMAGE_SIDE_PX] px."""
+    value = _int_at_least(text, 1, "is not an image size", "give a number of pixels >= 1")
+    if value > MAX_IMAGE_SIDE_PX:
+        raise argparse.ArgumentTypeError(f"{value} px is larger than {MAX_IMAGE_SIDE_PX} px; give a camera's image "
+                                         "size (1280 x 720 for the simulated D455)")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse ``type`` of a float flag: a finite number (NaN and +-inf are refused, not passed on)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number; give a number such as 0.5")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse ``type`` of a float flag that must be > 0 (a duration, a length, a scale)."""
+    value = finite_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return value
 
 
 def check_output_dir(path: str | os.PathLike, flag: str = "--out") -> Path:

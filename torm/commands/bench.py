@@ -24,7 +24,7 @@ import argparse
 import signal
 from typing import Any
 
-from torm.commands._common import add_parser, add_robot, count_arg, print_json
+from torm.commands._common import add_parser, add_robot, count_arg, positive_float, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -46,13 +46,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="run folder (created; resumed when it exists)")
     p.add_argument("--engine", choices=ENGINES, default="pool", help="pool: local processes (default); ray: Ray tasks")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
-    p.add_argument("--timeout", type=float, default=1800.0, help="seconds per trial before it is killed (default 1800)")
+    p.add_argument("--timeout", type=positive_float, default=1800.0,
+                   help="seconds per trial before it is killed (default 1800)")
     p.add_argument("--record", choices=RECORD_MODES, default="none",
                    help="rerun recordings per trial: none (default), failures (kept for failed trials), all")
     p.add_argument("--fresh", action="store_true", help="move existing results aside and start over")
     p.add_argument("--retry", choices=("failed",), default=None,
                    help="failed: also run again trials whose row is crashed, timeout or error (old rows kept)")
-    p.add_argument("--stop-grace", type=float, default=10.0, metavar="S",
+    p.add_argument("--stop-grace", type=positive_float, default=10.0, metavar="S",
                    help="seconds a stopping worker gets between SIGTERM and SIGKILL (default 10)")
     p.add_argument("--threads", type=int, default=0, help="threads per trial (default: free cores / workers)")
     p.add_argument("--base-seed", type=int, default=0, help="mixed into every trial seed (default 0)")

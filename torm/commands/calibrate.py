@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 
-from torm.commands._common import add_parser, add_robot, print_json
+from torm.commands._common import add_parser, add_robot, positive_float, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -30,8 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     he.add_argument("--poses", required=True, help="YAML/JSON with the robot pose of every image")
     he.add_argument("--intrinsics", required=True, help="YAML/JSON with K (or fx, fy, cx, cy) and optional dist")
     he.add_argument("--board", default="7x5", help="squares across x down (default 7x5)")
-    he.add_argument("--square", type=float, default=0.03, help="square side in metres (default 0.03)")
-    he.add_argument("--marker", type=float, default=0.022, help="marker side in metres (default 0.022)")
+    he.add_argument("--square", type=positive_float, default=0.03, help="square side in metres (default 0.03)")
+    he.add_argument("--marker", type=positive_float, default=0.022, help="marker side in metres (default 0.022)")
     he.add_argument("--dict", dest="dictionary", default="DICT_5X5_100", help="ArUco dictionary (default DICT_5X5_100)")
     he.add_argument("--method", default="PARK", help="TSAI | PARK | HORAUD | ANDREFF | DANIILIDIS (default PARK)")
     add_robot(he, "inovo_2f85")

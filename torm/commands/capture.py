@@ -34,6 +34,8 @@ from torm.commands._common import (
     add_robot,
     check_output_dir,
     count_arg,
+    pixels_arg,
+    positive_float,
     print_json,
     seed_arg,
 )
@@ -45,9 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="scenario name (see `torm scenes list`); simulation only")
     p.add_argument("--seed", type=seed_arg, default=0, help="layout seed (default 0)")
     p.add_argument("--views", type=count_arg, default=None, help="number of views (default: the rig config's, 50)")
-    p.add_argument("--width", type=int, default=None, help="image width in pixels (default 1280)")
-    p.add_argument("--height", type=int, default=None, help="image height in pixels (default 720)")
-    p.add_argument("--scale", type=float, default=None, help="scale the image size (e.g. 0.5 -> 640x360)")
+    p.add_argument("--width", type=pixels_arg, default=None, help="image width in pixels (default 1280)")
+    p.add_argument("--height", type=pixels_arg, default=None, help="image height in pixels (default 720)")
+    p.add_argument("--scale", type=positive_float, default=None, help="scale the image size (e.g. 0.5 -> 640x360)")
     p.add_argument("--out", required=True, help="output capture folder (transforms.json convention)")
     add_robot(p, "inovo_2f85", none_ok=True)
     from torm.vocabulary import DEPTH_MODELS, RENDERERS
@@ -61,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_record(p, "the capture")
     p.add_argument("--renderer", choices=RENDERERS, default="mujoco",
                    help="who renders RGB: MuJoCo's rasteriser or the Mitsuba path tracer (depth and masks: MuJoCo)")
-    p.add_argument("--spp", type=int, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
+    p.add_argument("--spp", type=count_arg, default=None, help="PBR samples per pixel (default: PbrSettings.spp)")
     p.add_argument("--reference", action="store_true",
                    help="also render each view over the empty workspace (reference/; a robot's reference pass)")
     p.add_argument("--empty", action="store_true",

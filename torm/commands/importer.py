@@ -20,7 +20,7 @@ import argparse
 import json
 from pathlib import Path
 
-from torm.commands._common import add_overrides, add_parser, check_output_dir, print_json
+from torm.commands._common import add_overrides, add_parser, check_output_dir, positive_float, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--images", required=True, help="folder of the images named in the model")
     c.add_argument("--masks", default=None, help="folder of masks named <image stem>.png (optional)")
     c.add_argument("--out", required=True, help="capture folder to write transforms.json into")
-    c.add_argument("--scale", type=float, default=1.0, help="metres per COLMAP unit (default 1)")
+    c.add_argument("--scale", type=positive_float, default=1.0, help="metres per COLMAP unit (default 1)")
     add_overrides(c, example="scale=0.001", target="import colmap (its options)")
     c.set_defaults(func=run_colmap)
 

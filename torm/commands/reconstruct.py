@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from torm.commands._common import add_overrides, add_parser, add_record, check_output_dir, print_json
+from torm.commands._common import add_overrides, add_parser, add_record, check_output_dir, finite_float, print_json
 
 log = logging.getLogger(__name__)
 
@@ -51,10 +51,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default=None, help="noisy: error preset (default paper)")
     p.add_argument("--seg-config", default=None, help="segmenter config YAML (e.g. ONNX model paths)")
     add_record(p, "the capture and the result")
-    p.add_argument("--bounds", type=float, nargs=6, default=None,
+    p.add_argument("--bounds", type=finite_float, nargs=6, default=None,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="reconstruction box (m, world frame); default: the capture's workspace_bounds, else automatic")
-    p.add_argument("--table-z", type=float, default=None,
+    p.add_argument("--table-z", type=finite_float, default=None,
                    help="table-top height (m); default: the capture's table_height")
     p.add_argument("--no-table", action="store_true", help="no table plane (objects may extend below z = 0)")
     p.add_argument("--holdout-every", type=int, default=0, metavar="K",

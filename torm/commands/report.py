@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from torm.commands._common import add_parser, print_json
+from torm.commands._common import add_parser, check_output_dir, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,5 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from torm.bench.report import write_report
 
+    if args.out is not None:
+        check_output_dir(args.out)  # a file on the way is a named error before any run is read
     print_json(write_report(args.runs, args.out))
     return 0

@@ -20,7 +20,17 @@ import time
 import traceback
 from typing import Any
 
-from torm.commands._common import add_parser, add_record, add_robot, check_output_dir, count_arg, print_json, seed_arg
+from torm.commands._common import (
+    add_parser,
+    add_record,
+    add_robot,
+    check_output_dir,
+    count_arg,
+    pixels_arg,
+    positive_float,
+    print_json,
+    seed_arg,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -34,17 +44,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pc = sub.add_parser("check", help="compile, settle and step every scene; exit 1 on any failure")
     pc.add_argument("--suite", default=None, help="only this suite")
     pc.add_argument("--scenario", action="append", default=[], help="only these scenarios (repeatable)")
-    pc.add_argument("--seeds", type=int, nargs="+", default=[0], help="layout seeds to build (default 0)")
+    pc.add_argument("--seeds", type=seed_arg, nargs="+", default=[0], help="layout seeds to build (default 0)")
     add_robot(pc, "inovo_2f85", none_ok=True)
-    pc.add_argument("--seconds", type=float, default=1.0, help="simulated seconds to step each scene (default 1)")
+    pc.add_argument("--seconds", type=positive_float, default=1.0, help="simulated seconds per scene (default 1)")
     pc.set_defaults(func=run_check)
 
     ps = sub.add_parser("show", help="render a few views of a scenario to PNGs (and a rerun .rrd)")
     ps.add_argument("--scenario", required=True, help="scenario name")
     ps.add_argument("--seed", type=seed_arg, default=0, help="layout seed (default 0)")
     ps.add_argument("--views", type=count_arg, default=6, help="number of views (default 6)")
-    ps.add_argument("--width", type=int, default=640, help="image width (default 640)")
-    ps.add_argument("--height", type=int, default=360, help="image height (default 360)")
+    ps.add_argument("--width", type=pixels_arg, default=640, help="image width (default 640)")
+    ps.add_argument("--height", type=pixels_arg, default=360, help="image height (default 360)")
     ps.add_argument("--out", required=True, help="folder for the PNGs")
     add_record(ps, "the capture")
     add_robot(ps, "inovo_2f85", none_ok=True)
@@ -111,8 +121,11 @@ def run_show(args: argparse.Namespace) -> int:
 
     from sim.camera_rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
+    from torm.resources import TRIAL_BASE_BYTES, capture_bytes, check_fits
     from torm.viz import instance_colors
 
+    check_fits(TRIAL_BASE_BYTES + capture_bytes(args.views, args.width, args.height),
+               f"--views {args.views} of {args.width}x{args.height} px", "give fewer --views or a smaller image")
     out = check_output_dir(args.out)
     world = build_world(args.scenario, args.seed, robot=_robot(args.robot_config))
     cfg = CameraRigConfig(n_views=args.views, width=args.width, height=args.height)

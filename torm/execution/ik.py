@@ -8,11 +8,13 @@ residual and reports it; :class:`UnreachableError` is raised by callers that req
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import mink
 import mujoco
 import numpy as np
 
+from torm.config import Range, check_finite
 from torm.errors import ConfigError, ExecutionError
 
 #: Random restarts of :meth:`IKSolver.solve_free` after the seeded solve failed.
@@ -23,13 +25,18 @@ class UnreachableError(ExecutionError):
     """No joint configuration within the limits puts the TCP at the requested pose."""
 
 
+#: IK solutions stay this far inside every joint range (rad): the safety layer refuses a joint beyond its limit by
+#: any amount, and the QP's integration step may overshoot a bound it approaches by a fraction of a mrad.
+IK_LIMIT_MARGIN_RAD = 2e-3
+
+
 @dataclass(frozen=True)
 class IKConfig:
     """IK settings. Tolerances in m and rad; ``dt`` is the integration step of the velocity QP (s)."""
 
     pos_tol: float = 1e-3
     rot_tol: float = 1e-2
-    max_iters: int = 200
+    max_iters: Annotated[int, Range(1, 2000, "10x the default; 0.17 ms per iteration: a failed solve < 0.5 s")] = 200
     dt: float = 0.05
     damping: float = 1e-3
     lm_damping: float = 1e-3
@@ -37,6 +44,7 @@ class IKConfig:
     solver: str = "daqp"
 
     def __post_init__(self) -> None:
+        check_finite(self, "IKConfig")  # ranges and NaN / inf (torm.config), also when built in Python
         if self.pos_tol <= 0 or self.rot_tol <= 0 or self.dt <= 0 or self.max_iters < 1:
             raise ConfigError("IKConfig: tolerances, dt and max_iters must be positive")
 
@@ -78,7 +86,9 @@ class IKSolver:
         self._frame = mink.FrameTask(tcp_site, "site", position_cost=1.0, orientation_cost=1.0,
                                      lm_damping=self.config.lm_damping)
         self._posture = mink.PostureTask(model, cost=self.config.posture_cost)
-        self._limits = [mink.ConfigurationLimit(model)]
+        # IK keeps IK_LIMIT_MARGIN_RAD inside every joint range, so a solution never lands on a limit that the
+        # safety layer checks exactly (a float step past it refused a lift: -2.8902 rad against -2.8900)
+        self._limits = [mink.ConfigurationLimit(model, min_distance_from_limits=IK_LIMIT_MARGIN_RAD)]
 
     def forward(self, q_arm: np.ndarray) -> np.ndarray:
         """TCP pose (4, 4) in the world for arm joints ``q_arm`` (n,) rad."""
@@ -112,14 +122,22 @@ class IKSolver:
             if pos_err < cfg.pos_tol and rot_err < cfg.rot_tol:
                 break
         q_out = self.configuration.q[self._qadr].copy()
+        lo, hi = self.joint_ranges(unlimited=np.inf)
+        inside = np.clip(q_out, lo + 0.5 * IK_LIMIT_MARGIN_RAD, hi - 0.5 * IK_LIMIT_MARGIN_RAD)
+        if not np.array_equal(inside, q_out):  # the QP's integration stepped into the margin: back inside, re-measured
+            q_out = inside
+            q[self._qadr] = q_out
+            self.configuration.update(q)
+            err = self._frame.compute_error(self.configuration)
+            pos_err, rot_err = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
         ok = bool(np.isfinite(pos_err) and pos_err < cfg.pos_tol and rot_err < cfg.rot_tol)
         return IKResult(q_out, pos_err, rot_err, ok, it)
 
-    def joint_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+    def joint_ranges(self, unlimited: float = np.pi) -> tuple[np.ndarray, np.ndarray]:
         """(lower (n,), upper (n,)) rad of the solved joints: the model's ranges, which the robot composition sets
         to the robot config's ``arm.position_limits`` (one set of limits for IK and the safety layer);
-        unlimited joints get [-pi, pi] for sampling."""
-        lo, hi = np.full(len(self.joint_names), -np.pi), np.full(len(self.joint_names), np.pi)
+        unlimited joints get [-unlimited, unlimited] (pi: for sampling)."""
+        lo, hi = np.full(len(self.joint_names), -unlimited), np.full(len(self.joint_names), unlimited)
         for k, j in enumerate(self.joint_names):
             jid = self.model.joint(j).id
             if self.model.jnt_limited[jid]:

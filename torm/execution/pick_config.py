@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
 
+from torm.config import Range, check_finite
 from torm.errors import ConfigError
 from torm.execution.ik import IKConfig
 
@@ -64,7 +66,7 @@ class PickConfig:
     close_width: float = 0.0
     settle_after_close: float = 0.2
     ik: IKConfig = field(default_factory=IKConfig)
-    max_candidates: int = 10
+    max_candidates: Annotated[int, Range(1, 1000, "grasps tried per object; each costs IK solves")] = 10
     control_dt: float = 0.01
     line_step: float = 0.01
     max_joint_step: float = 0.3
@@ -77,6 +79,7 @@ class PickConfig:
     tcp_tolerance: float = 0.005
 
     def __post_init__(self) -> None:
+        check_finite(self, "PickConfig")  # ranges and NaN / inf (torm.config), also when built in Python
         for name in ("pre_grasp_distance", "approach_speed", "transport_speed", "lift_height", "translate_distance",
                      "grip_force", "grip_speed", "control_dt", "line_step", "max_joint_step", "approach_tolerance",
                      "neighbour_tolerance", "sample_dt", "tcp_tolerance"):

@@ -22,16 +22,18 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Annotated, Any, Protocol, runtime_checkable
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from torm.config import Range, check_finite
 from torm.errors import ConfigError, GraspError
 from torm.grasp.antipodal import GraspCandidates, enumerate_grasps, sample_contact_pairs
 from torm.grasp.collision import points_collision_free, table_collision_free
 from torm.grasp.gripper import GripperGeometry
 from torm.grasp.score import GreedyNMS, approach_quality, centre_quality, clearance_quality, depth_quality
+from torm.resources import check_fits, grasp_bytes
 from torm.types import Grasp, ObjectPointCloud, TriMesh
 
 log = logging.getLogger(__name__)
@@ -66,9 +68,9 @@ class GraspPlannerConfig:
         seed: default seed of the contact sampling (a Generator passed to plan() wins).
     """
 
-    n_samples: int = 256
+    n_samples: Annotated[int, Range(1, 65_536, "contacts per object; ~1 kB per sample, angle and depth")] = 256
     friction_coef: float = 0.5
-    n_approach_angles: int = 16
+    n_approach_angles: Annotated[int, Range(1, 360, "1 deg apart at 360; the duplicate filter merges 20 deg")] = 16
     max_tilt_deg: float = 90.0
     depths: tuple[float, ...] = (0.005, 0.01, 0.01875, 0.03)
     width_margin: float = 0.01
@@ -89,11 +91,12 @@ class GraspPlannerConfig:
     clearance_scale: float = 0.03
     nms_translation: float = 0.01
     nms_angle_deg: float = 20.0
-    top_k: int = 5
-    batch_size: int = 256
+    top_k: Annotated[int, Range(1, 1000, "grasps kept per object")] = 5
+    batch_size: Annotated[int, Range(1, 1 << 20, "candidates per collision block")] = 256
     seed: int = 0
 
     def __post_init__(self) -> None:
+        check_finite(self, "GraspPlannerConfig")  # ranges and NaN / inf (torm.config), also when built in Python
         def positive(name: str, integer: bool = False) -> None:
             v = getattr(self, name)
             if (integer and (isinstance(v, bool) or not isinstance(v, int))) or not np.isfinite(v) or v <= 0:
@@ -112,6 +115,9 @@ class GraspPlannerConfig:
         if not 0.0 < self.max_tilt_deg <= 180.0:
             raise ConfigError(f"GraspPlannerConfig.max_tilt_deg must be in (0, 180], got {self.max_tilt_deg}")
         depths = tuple(float(d) for d in self.depths)
+        if len(depths) > 64:
+            raise ConfigError(f"GraspPlannerConfig.depths has {len(depths)} entries; give at most 64 depths "
+                              "(default 4)")
         if not depths or any(not np.isfinite(d) or d < 0 for d in depths):
             raise ConfigError(f"GraspPlannerConfig.depths must be a non-empty list of non-negative metres, "
                               f"got {depths}")
@@ -299,6 +305,10 @@ class AntipodalGraspPlanner:
         scene = prepare_scene(point_clouds, meshes)
         if not scene.object_ids:
             return []
+        need = grasp_bytes(len(scene.object_ids), cfg.n_samples, cfg.n_approach_angles, len(cfg.depths))
+        check_fits(need, f"grasp.n_samples={cfg.n_samples} x grasp.n_approach_angles={cfg.n_approach_angles} x "
+                   f"{len(cfg.depths)} depths for {len(scene.object_ids)} objects",
+                   "lower grasp.n_samples or grasp.n_approach_angles (defaults 256 and 16)")
         pairs = sample_contact_pairs(
             scene.points, scene.normals, meshes if cfg.use_meshes else None,
             n_samples=cfg.n_samples, friction_coef=cfg.friction_coef,

@@ -74,11 +74,12 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from scipy import ndimage
 
+from torm.config import Range, check_finite
 from torm.errors import CaptureError, ConfigError, ReconstructionError
 from torm.mesh import sample_objects
 from torm.mesh.split import signed_volume, split_components
@@ -196,21 +197,22 @@ class ReconstructionConfig:
     facet_frac: float = 0.3
     band: float = 0.4
     carve_res: int = 128
-    hull_mask_res: int = 0
-    refine_iters: int = 0
+    hull_mask_res: Annotated[int, Range(0, 4096, "mask side in px; cameras here are <= 1280 px")] = 0
+    refine_iters: Annotated[int, Range(0, 100_000, "DMTet steps (~26 ms each on 2 cores)")] = 0
     refine_loss: Literal["robust", "init"] = "robust"
     refine_lr: float = 0.02
     refine_lr_min: float = 0.002
-    mask_res: int = 256
+    mask_res: Annotated[int, Range(8, 4096, "mask side in px; cameras here are <= 1280 px")] = 256
     min_component: int = 20
     min_component_volume: float = 1e-7
     min_views_per_object: int | None = None
-    points_per_object: int = 2048
+    points_per_object: Annotated[int, Range(1, 1 << 18, "128x the default; ~0.1 kB per point in the planner")] = 2048
     ignore_empty_views: bool = True
     dmtet: DMTetConfig = field(default_factory=DMTetConfig)
     seed: int = 0
 
     def __post_init__(self) -> None:
+        check_finite(self, "ReconstructionConfig")  # ranges and NaN / inf (torm.config), also when built in Python
         if self.mode not in MODES:
             raise ConfigError(f"ReconstructionConfig.mode={self.mode!r}; valid choices: {', '.join(MODES)}")
         if self.refine_loss not in ("robust", "init"):
