@@ -42,6 +42,15 @@ class Returns:
         return [ObjectEstimate(p)]
 
 
+class RaisingPlanner:
+    """A planner plug-in with a bug: ``plan`` raises."""
+
+    name, version = "raising", "0.0.2"
+
+    def plan(self, point_clouds, meshes, context):
+        raise ZeroDivisionError("division by zero in my grasp scorer\nsecond line")
+
+
 class TopDown:
     """A planner plug-in: one top-down grasp per object, closing along world y, 2 cm below its top."""
 

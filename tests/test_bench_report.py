@@ -195,3 +195,41 @@ def test_html_page_escapes_renders_bold_and_keeps_intervals_on_one_line():
     assert "A &lt;b&gt;tag&lt;/b&gt;" in page and "<b>Warning:</b> <code>x</code> &amp; y" in page
     assert "**" not in page and "white-space: nowrap" in page
     assert "<td>12/20 (60% [39-78])</td>" in page and '<img src="plot.png" alt="success by scenario">' in page
+
+
+def test_report_lists_failed_trials_with_their_message_and_the_plugin_that_failed(run_dirs, tmp_path):
+    import shutil
+
+    from torm.bench.identity import grid_hash
+
+    a = tmp_path / "a"
+    shutil.copytree(run_dirs / "a", a)
+    rows = [json.loads(x) for x in (a / "results.jsonl").read_text().splitlines()]
+    crashed = [r for r in rows if r["status"] == "crashed"]
+    assert len(crashed) == 2  # rw3 trial 2 of both methods
+    for r in rows:  # the depth method becomes a plug-in that raised in one trial
+        if r["method"] == "depth":
+            r.setdefault("context", {}).update(method_source="entry point my_lab.methods:depth_v2",
+                                               method_name="depth_v2", method_version="1.2.3")
+            if r["scenario"] == "rw1" and r["trial"] == 0:
+                r.update(status="error", failure="error",
+                         message="ValueError: my_lab could not read the depth image\nTraceback (most recent ...")
+    (a / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    write_report([a], tmp_path / "rep")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    failed = _table(md, "Scenario | Trial | Method | Status")
+    assert len(failed) == 3
+    plugin_row = next(r for r in failed if r[0] == "rw1")
+    assert plugin_row[2] == "depth (depth_v2 1.2.3)" and plugin_row[3] == "error"
+    assert plugin_row[5] == "ValueError: my_lab could not read the depth image"  # the first line only
+    crash_row = next(r for r in failed if r[0] == "rw3" and r[2] == "torm")
+    assert crash_row[3] == "crashed" and crash_row[5] and "[log](" in crash_row[6]
+    methods = _table(md, "Method | Source | Version")
+    assert ["depth", "entry point my_lab.methods:depth_v2", "1.2.3", "antipodal (built-in)", "–"] in methods
+    assert ["torm", "built-in (torm)", "(this code)", "antipodal (built-in)", "–"] in methods
+    manifest = json.loads((a / "manifest.json").read_text())
+    assert f"grid {manifest['grid']['hash'][:16]}" in md
+    assert manifest["grid"]["hash"] == grid_hash(r["key"] for r in rows)
+    assert grid_hash(["rw/rw1/0/torm"]) != grid_hash(["rw/rw1/0/torm", "rw/rw1/1/torm"])
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert '<div class="scroll"><table>' in page and "*trials*" not in page and '<a href="' in page

@@ -141,6 +141,22 @@ def test_planner_plugins_are_found_checked_and_their_mistakes_named():
         validate_grasps("td", good, clouds, 0.01)
 
 
+def test_a_planner_plugin_that_raises_is_one_named_error():
+    from types import SimpleNamespace
+
+    from torm.grasp.gripper import GripperGeometry
+    from torm.loop import plan_with_planner
+    from torm.pipeline import TrialConfig
+    from torm.types import ObjectPointCloud
+
+    p = np.random.default_rng(0).normal([0.55, 0.0, 0.04], 0.015, (50, 3))
+    per = SimpleNamespace(point_clouds=[ObjectPointCloud(p, np.tile([0.0, 0.0, 1.0], (50, 1)), 1)], meshes=None)
+    cfg = TrialConfig(scenario="rw1", planner="plugin_methods:RaisingPlanner")
+    with pytest.raises(PluginError, match=r"planner plug-in 'plugin_methods:RaisingPlanner' \(version 0.0.2\) "
+                                          r"raised ZeroDivisionError: division by zero in my grasp scorer; fix"):
+        plan_with_planner(cfg, per, 0.0, GripperGeometry(), np.random.default_rng(0), None)
+
+
 @pytest.mark.slow
 def test_a_planner_plugin_plans_a_trial_and_the_row_names_it():
     from torm import config

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from torm.config import to_dict
-from torm.errors import CaptureError, ConfigError, ExecutionError, ReconstructionError
+from torm.errors import CaptureError, ConfigError, ExecutionError, ReconstructionError, TormError
 from torm.execution.pick import execute_pick, free_directions
 from torm.execution.success import Outcome
 from torm.perception import (
@@ -275,7 +275,18 @@ def plan_with_planner(config: TrialConfig, per: Perception, table_z: float, grip
     planner = load_planner(config.planner, dict(config.planner_options))
     ctx = PlannerContext(table_height=table_z, gripper=gripper, obstacles=obstacles, rng=rng, config=config.grasp,
                          options=dict(config.planner_options))
-    out = planner.plan(per.point_clouds, per.meshes or None, ctx)
+    try:
+        out = planner.plan(per.point_clouds, per.meshes or None, ctx)
+    except TormError:
+        raise
+    except Exception as exc:  # a plug-in's own bug: one named line, not a traceback from inside the plug-in
+        if config.planner == "antipodal":
+            raise
+        from torm.errors import PluginError
+
+        first = next((ln for ln in str(exc).splitlines() if ln.strip()), "")
+        raise PluginError(f"planner plug-in {config.planner!r} (version {getattr(planner, 'version', '?')}) raised "
+                          f"{type(exc).__name__}: {first}; fix the plug-in or use --set planner=antipodal") from exc
     return validate_grasps(config.planner, out, per.point_clouds, float(gripper.max_opening))
 
 

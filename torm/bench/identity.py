@@ -25,6 +25,7 @@ import json
 import platform
 import re
 import subprocess
+from collections.abc import Iterable
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -159,6 +160,12 @@ def run_identity(bench: dict[str, Any], trial_config: dict[str, Any] | None,
             "code": code if code is not None else code_version()}
 
 
+def grid_hash(keys: Iterable[str]) -> str:
+    """SHA-256 of a grid's trial keys (``suite/scenario/trial/method``), order-free: two runs of one config with
+    different grids (more trials, other scenarios) differ here though their :func:`identity_hash` is equal."""
+    return hashlib.sha256(json.dumps(sorted(set(keys))).encode()).hexdigest()
+
+
 def identity_hash(identity: dict[str, Any]) -> str:
     """SHA-256 (hex) of the identity's canonical JSON (non-finite floats as null)."""
     from torm.bench.results import _clean
@@ -167,5 +174,5 @@ def identity_hash(identity: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-__all__ = ["CODE_PACKAGES", "code_version", "dependency_versions", "git_state", "identity_hash", "package_files_hash",
-           "referenced_files", "run_identity"]
+__all__ = ["CODE_PACKAGES", "code_version", "dependency_versions", "git_state", "grid_hash", "identity_hash",
+           "package_files_hash", "referenced_files", "run_identity"]

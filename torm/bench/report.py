@@ -22,6 +22,7 @@ own sections. ``table3.csv`` and ``objects.csv`` hold the success tables for spr
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import logging
 import math
@@ -31,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from torm.bench.identity import grid_hash
 from torm.bench.report_html import to_html
 from torm.bench.results import RESULTS_NAME, read_manifest, read_results
 from torm.bench.rows import trial_failed
@@ -325,6 +327,65 @@ def failure_table(run: Run) -> list[Block]:
     return out
 
 
+def methods_table(run: Run) -> list[Block]:
+    """Each method's source and version and the planner, from the rows' context (plug-ins and planners record
+    theirs: :func:`torm.pipeline.trial_context`); built-ins are this torm's code."""
+    body = []
+    for meth in methods_of(run.rows, run.manifest):
+        ctx = [r.get("context") or {} for r in run.rows if r.get("method") == meth]
+
+        def seen(key: str, default: str = "–", ctx=ctx) -> str:
+            vals = sorted({str(c[key]) for c in ctx if c.get(key) is not None})
+            return " / ".join(vals) if vals else default
+
+        builtin = not any(c.get("method_source") for c in ctx)
+        body.append([meth, "built-in (torm)" if builtin else seen("method_source"),
+                     "(this code)" if builtin else seen("method_version"), seen("planner", "antipodal (built-in)"),
+                     seen("planner_version")])
+    return [("h2", "Methods and planners"),
+            ("table", ["Method", "Source", "Version", "Planner", "Planner version"], body)]
+
+
+#: Characters of a failed trial's message shown in the report (its first line).
+MESSAGE_CHARS = 200
+
+
+def first_line(text: Any, limit: int = MESSAGE_CHARS) -> str:
+    """The first non-empty line of ``text``, cut to ``limit`` characters (with an ellipsis)."""
+    line = next((ln.strip() for ln in str(text or "").splitlines() if ln.strip()), "")
+    return line if len(line) <= limit else line[:limit - 1] + "…"
+
+
+def errors_table(run: Run, out_dir: Path | None = None) -> list[Block]:
+    """Every trial that did not return (or returned a trial-level failure), with the first line of its message,
+    the method (plug-in name and version when it is one), its log and its recording as links."""
+    body = []
+    for r in sorted(run.rows, key=lambda r: (_natural(str(r.get("scenario"))), str(r.get("method")),
+                                             int(r.get("trial") or 0))):
+        if r.get("status") == "ok" and not r.get("failure"):
+            continue
+        ctx = r.get("context") or {}
+        meth = str(r.get("method"))
+        if ctx.get("method_source"):
+            meth += f" ({ctx.get('method_name') or ctx['method_source']} {ctx.get('method_version') or ''})".rstrip()
+        msg = r.get("message") or next((o.get("message") for o in r.get("objects") or [] if o.get("message")), "")
+        links = []
+        for label, path in (("log", _get(r, "run.log")), ("recording", _get(r, "run.recording"))):
+            if path:
+                rel = Path(path)
+                with contextlib.suppress(ValueError):
+                    rel = rel.relative_to(out_dir.resolve()) if out_dir is not None else rel
+                links.append(f"[{label}]({rel.as_posix()})")
+        body.append([str(r.get("scenario")), str(r.get("trial")), meth, str(r.get("status")),
+                     str(r.get("failure") or "–"), first_line(msg), " ".join(links) or "–"])
+    if not body:
+        return []
+    return [("h2", "Failed trials"),
+            ("p", f"{len(body)} trial(s) did not return or failed as a whole: the first line of each message "
+                  "(the full text is in `results.jsonl` and the trial's log)."),
+            ("table", ["Scenario", "Trial", "Method", "Status", "Failure", "Message", "Files"], body)]
+
+
 def stages_of(rows: list[dict[str, Any]]) -> list[str]:
     """The pipeline stages in :data:`STAGES` order, then any other stage the rows time (``total`` excluded)."""
     extra = sorted({k for r in rows for k in (r.get("timings") or {}) if k not in STAGES and k != "total"})
@@ -425,8 +486,10 @@ def summary_blocks(run: Run) -> list[Block]:
                      f"overrides: {', '.join(f'`{o}`' for o in cfg.get('overrides', [])) or 'none'}, "
                      f"trial function `{cfg.get('trial_fn')}`.")
     if git or m:
+        grid = (m.get("grid") or {}).get("hash") or grid_hash(str(r.get("key")) for r in run.rows)
         lines.append(f"Git {git.get('commit') or 'unknown'}" + (" (dirty)" if git.get("dirty") else "")
-                     + f"; run identity {str(m.get('identity_hash') or 'unknown')[:16]}.")
+                     + f"; run identity {str(m.get('identity_hash') or 'unknown')[:16]} (config and code), "
+                     f"grid {grid[:16]} (its trials).")
     out: list[Block] = [("p", " ".join(lines))]
     ran = what_ran(run.rows)
     if ran:
@@ -556,8 +619,9 @@ def comparison_blocks(a: Run, b: Run) -> list[Block]:
 
 
 def run_blocks(run: Run, out_dir: Path, prefix: str = "") -> list[Block]:
-    return (summary_blocks(run) + table3(run) + reconstruction_table(run) + failure_table(run) + timing_table(run)
-            + throughput_table(run) + [("h2", "Plots")] + make_plots(run, out_dir, prefix))
+    return (summary_blocks(run) + methods_table(run) + table3(run) + reconstruction_table(run) + failure_table(run)
+            + errors_table(run, out_dir) + timing_table(run) + throughput_table(run) + [("h2", "Plots")]
+            + make_plots(run, out_dir, prefix))
 
 
 # ----------------------------------------------------------------------------------------- rendering

@@ -1,8 +1,9 @@
 """The HTML page of ``torm report`` from its blocks, through a Jinja2 template (autoescaped).
 
 Blocks are ``("h1" | "h2" | "h3" | "p", text)``, ``("table", headers, rows)`` and ``("img", file, caption)``;
-text may hold Markdown's ``**bold**`` and ```code``` spans, rendered as ``<b>`` and ``<code>``. Table cells do
-not wrap, so an interval such as ``12/20 (60% [39-78])`` stays on one line.
+text may hold Markdown's ``**bold**``, ``*italic*``, ```code``` and ``[link](href)`` spans, rendered as ``<b>``,
+``<i>``, ``<code>`` and ``<a>``. Table cells do not wrap, so an interval such as ``12/20 (60% [39-78])`` stays on
+one line; a table wider than the page scrolls sideways instead of being cut.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ TEMPLATE = """<!doctype html>
 <html><head><meta charset="utf-8"><title>{{ title }}</title>
 <style>
 body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; }
+.scroll { overflow-x: auto; max-width: 100%; }
 table { border-collapse: collapse; margin: 1em 0; }
 td, th { border: 1px solid #bbb; padding: 3px 8px; text-align: left; white-space: nowrap; }
 th { background: #eee; }
@@ -26,10 +28,10 @@ img { max-width: 100%; }
 {% for b in blocks %}
 {%- if b[0] in ("h1", "h2", "h3") %}<{{ b[0] }}>{{ b[1] | inline }}</{{ b[0] }}>
 {%- elif b[0] == "p" %}<p>{{ b[1] | inline }}</p>
-{%- elif b[0] == "table" %}<table>
+{%- elif b[0] == "table" %}<div class="scroll"><table>
 <tr>{% for h in b[1] %}<th>{{ h | inline }}</th>{% endfor %}</tr>
 {% for row in b[2] %}<tr>{% for c in row %}<td>{{ c | string | inline }}</td>{% endfor %}</tr>
-{% endfor %}</table>
+{% endfor %}</table></div>
 {%- elif b[0] == "img" %}<figure><img src="{{ b[1] }}" alt="{{ b[2] }}">
 <figcaption>{{ b[2] | inline }}</figcaption></figure>
 {%- endif %}
@@ -39,9 +41,12 @@ img { max-width: 100%; }
 
 
 def inline(text: Any) -> Markup:
-    """Escape ``text`` and turn Markdown's ``**bold**`` and ```code``` spans into ``<b>`` and ``<code>``."""
+    """Escape ``text`` and turn Markdown's ``**bold**``, ``*italic*``, ```code``` and ``[text](href)`` spans into
+    ``<b>``, ``<i>``, ``<code>`` and ``<a>``."""
     t = str(escape(str(text)))
     t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+    t = re.sub(r"(?<![\w*])\*(?!\s)(.+?)(?<!\s)\*(?![\w*])", r"<i>\1</i>", t)
+    t = re.sub(r"\[([^\]]+)\]\(([^)\s]+)\)", r'<a href="\2">\1</a>', t)
     return Markup(re.sub(r"`(.+?)`", r"<code>\1</code>", t))
 
 

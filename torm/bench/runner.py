@@ -37,7 +37,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from torm.bench.identity import identity_hash, run_identity
+from torm.bench.identity import grid_hash, identity_hash, run_identity
 from torm.bench.isolate import TrialJob
 from torm.bench.lock import RunLock
 from torm.bench.results import (
@@ -218,7 +218,7 @@ def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest:
     code = manifest["identity"]["code"]
     manifest.update({"updated": utc_now(), "versions": code["packages"], "git": code["git"],
                      "grid": {"n_trials": len(grid), "scenarios": sorted({s.scenario for s in grid}),
-                              "methods": list(config.methods)}})
+                              "methods": list(config.methods), "hash": grid_hash(s.key for s in grid)}})
     write_json_atomic(out / MANIFEST_NAME, manifest)
     job = TrialJob(trial_fn=config.trial_fn, overrides=config.overrides, timeout_s=config.timeout_s,
                    threads=threads, record=config.record, recordings_dir=str(out.resolve() / "recordings"),
