@@ -45,3 +45,39 @@ def test_pointcloud_env_passes_the_checker_and_bad_modes_list_the_choices():
         gym.make("torm/TormPick-v0", obs_mode="depth")
     with pytest.raises(UnknownNameError, match="pd_ee_delta_pose"):
         gym.make("torm/TormPick-v0", control_mode="pd_joint_pos")
+
+
+SELECT_KEYS = {"candidates", "valid", "object_summary", "object_points"}
+
+
+@pytest.mark.parametrize(("obs_mode", "extra"), [
+    ("state", set()), ("rgb", {"overview_rgb"}), ("rgbd", {"overview_rgb", "overview_depth"}),
+    ("pointcloud", {"pointcloud_xyz", "pointcloud_rgb"})])
+def test_grasp_select_takes_the_same_obs_modes(obs_mode, extra):
+    env = gym.make("torm/TormGraspSelect-v0", obs_mode=obs_mode, image_size=(24, 32), pointcloud_points=64)
+    try:
+        obs, info = env.reset(seed=0)
+        assert set(obs) == SELECT_KEYS | extra  # no ground truth unless privileged_state
+        assert env.observation_space.contains(obs)
+        again, _ = env.reset(seed=0)
+        assert all(np.array_equal(obs[k], again[k]) for k in obs)  # seeded
+        if obs_mode == "rgbd":
+            assert 0.2 < float(np.median(obs["overview_depth"])) < 3.0  # the table, about a metre away
+        if obs_mode == "pointcloud":
+            check_env(env.unwrapped, skip_render_check=True)
+    finally:
+        env.close()
+
+
+def test_grasp_select_privileged_state_names_the_real_target_and_bad_modes_list_the_choices():
+    env = gym.make("torm/TormGraspSelect-v0", privileged_state=True)
+    try:
+        obs, _ = env.reset(seed=0)
+        true = obs["true_target"]
+        assert true[3] == 1.0  # the oracle's target is a real object ...
+        centroid = obs["object_summary"][:3]
+        assert np.linalg.norm(true[:2] - centroid[:2]) < 0.05  # ... under the perceived centroid
+    finally:
+        env.close()
+    with pytest.raises(UnknownNameError, match="obs_mode 'depth'; valid choices: pointcloud, rgb, rgbd, state"):
+        gym.make("torm/TormGraspSelect-v0", obs_mode="depth")

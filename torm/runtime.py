@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
+import sys
+import weakref
 
 log = logging.getLogger(__name__)
 
@@ -65,3 +68,35 @@ def ensure_headless_gl() -> None:
     """Default ``MUJOCO_GL`` to ``egl`` (headless) unless the user chose a backend."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"] if os.environ["MUJOCO_GL"] != "glfw" else "")
+
+
+_CLOSE_AT_EXIT: weakref.WeakSet = weakref.WeakSet()
+_EXIT_HOOK_REGISTERED = False
+
+
+def close_at_exit(obj: object) -> None:
+    """Call ``obj.close()`` at interpreter exit if it is still alive then (an env the user never closed).
+
+    MuJoCo's EGL backend registers ``eglTerminate`` at exit when it makes its display (with the first GL context),
+    and exit handlers run last-registered first; torm's hook is registered on the first call made after that display
+    exists, so it closes the contexts while the display is still there (without it, the renderers' ``__del__``
+    fails on a terminated display and prints EGL tracebacks). Call it after ``obj`` may have made GL contexts
+    (after a reset, a render). ``obj`` is held weakly; closing twice must be harmless.
+    """
+    global _EXIT_HOOK_REGISTERED
+    _CLOSE_AT_EXIT.add(obj)
+    if _EXIT_HOOK_REGISTERED:
+        return
+    egl = sys.modules.get("mujoco.egl")
+    if egl is not None and getattr(egl, "EGL_DISPLAY", None) is None:
+        return  # no display yet: registering now would run after its eglTerminate; the next call registers
+    atexit.register(_close_all)
+    _EXIT_HOOK_REGISTERED = True
+
+
+def _close_all() -> None:
+    for obj in list(_CLOSE_AT_EXIT):
+        try:
+            obj.close()
+        except Exception as exc:  # at exit nothing can be done about it
+            log.debug("closing %r at exit failed: %s", obj, exc)

@@ -30,6 +30,14 @@ Observation (``Dict``), world frame (robot base, z up, m), all from perception:
   principal standard deviations of the points (3, m, descending), number of candidates / K.
 - ``object_points`` (M, 3) float32: M points of the target's perceived cloud relative to its centroid (m).
 
+``obs_mode`` adds sensor data the way :class:`torm.env.pick_env.TormPickEnv` names it (ManiSkill's vocabulary),
+from the env's fixed overview camera at reset (``image_size``): ``state`` (the keys above only), ``rgb``
+(+ ``overview_rgb`` (H, W, 3) uint8), ``rgbd`` (+ ``overview_depth`` (H, W) float32 m), ``pointcloud``
+(+ ``pointcloud_xyz`` (N, 3) float32 world m and ``pointcloud_rgb`` (N, 3) uint8, N = ``pointcloud_points``). None of
+these is ground truth. ``privileged_state=True`` adds ``true_target`` (4,) float32: the position (m) of the real
+object nearest the target's perceived centroid and 1.0, or zeros when none lies within
+:data:`PHANTOM_DISTANCE` (a phantom); for privileged baselines and analysis, never for a policy meant for a robot.
+
 ``info`` at reset names the scenario, layout seed, perception, segmenter, renderer, depth model, realism profile
 (and its draw), the pad force used and the perception's timings; after the step, the outcome, ``is_success``, the
 real object the judge saw picked (``picked_object``, None for a phantom) and the pick's record.
@@ -59,6 +67,7 @@ from torm.execution.pick import PickConfig
 from torm.execution.success import SuccessCriteria
 from torm.grasp.gripper import GripperGeometry
 from torm.grasp.planner import GraspPlannerConfig
+from torm.runtime import close_at_exit
 from torm.types import Grasp, ObjectPointCloud
 
 if TYPE_CHECKING:
@@ -71,6 +80,10 @@ FEATURE_NAMES = ("dx", "dy", "dz", "approach_x", "approach_y", "approach_z", "cl
                  "width", "depth", "score", "height", "clearance", "tilt", "rank")
 #: Every feature is a distance (m), a unit-vector component, an angle (rad) or a fraction: |value| <= this.
 FEATURE_BOUND = 10.0
+#: observation modes, as :mod:`torm.env.pick_env` and ManiSkill name them (``obs_mode``)
+OBS_MODES = ("state", "rgb", "rgbd", "pointcloud")
+#: A perceived target farther than this (m) from every real object is a phantom in ``true_target``.
+PHANTOM_DISTANCE = 0.05
 SUMMARY_NAMES = ("cx", "cy", "cz", "size_x", "size_y", "size_z", "std_0", "std_1", "std_2", "n_candidates")
 
 
@@ -106,6 +119,10 @@ class GraspSelectEnvConfig:
         pick: pick execution settings.
         criteria: the success test's tolerances.
         render_size: (H, W) of ``render()`` images.
+        obs_mode: ``state``, ``rgb``, ``rgbd`` or ``pointcloud`` (:data:`OBS_MODES`, the module docstring).
+        image_size: (H, W) of the overview camera's observation images (pixels).
+        pointcloud_points: N, points of ``pointcloud_xyz`` (drawn from the overview camera's depth pixels).
+        privileged_state: add ``true_target`` (ground truth) to the observation.
         trial_overrides: further ``section.key=value`` settings of the trial config (e.g.
             ``("segmentation.options.model=/path/seg.onnx",)``); they win over the fields above.
     """
@@ -131,12 +148,18 @@ class GraspSelectEnvConfig:
     pick: PickConfig = field(default_factory=PickConfig)
     criteria: SuccessCriteria = field(default_factory=SuccessCriteria)
     render_size: tuple[int, int] = (240, 320)
+    obs_mode: str = "state"
+    image_size: tuple[int, int] = (96, 96)
+    pointcloud_points: int = 1024
+    privileged_state: bool = False
     trial_overrides: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.perception not in PERCEPTIONS:
             raise UnknownNameError("perception", self.perception, PERCEPTIONS)
-        for name in ("top_k", "n_points", "object_points", "n_views"):
+        if self.obs_mode not in OBS_MODES:
+            raise UnknownNameError("obs_mode", self.obs_mode, OBS_MODES)
+        for name in ("top_k", "n_points", "object_points", "n_views", "pointcloud_points"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"GraspSelectEnvConfig.{name} must be >= 1, got {getattr(self, name)}")
         if not self.max_clearance > 0 or not self.capture_scale > 0:
@@ -147,6 +170,10 @@ class GraspSelectEnvConfig:
         if len(hw) != 2 or min(hw) < 8:
             raise ConfigError(f"GraspSelectEnvConfig.render_size must be (H, W) >= 8 pixels, got {hw}")
         object.__setattr__(self, "render_size", hw)
+        ihw = tuple(int(v) for v in self.image_size)
+        if len(ihw) != 2 or min(ihw) < 8 or max(ihw) > 1024:
+            raise ConfigError(f"GraspSelectEnvConfig.image_size must be (H, W) in 8..1024 pixels, got {ihw}")
+        object.__setattr__(self, "image_size", ihw)
         object.__setattr__(self, "trial_overrides", tuple(str(o) for o in self.trial_overrides))
         if self.suite:
             from sim.scenes.scenario import list_scenarios, list_suites
@@ -227,7 +254,21 @@ class TormGraspSelectEnv(gym.Env):
             "object_summary": spaces.Box(-b, b, (len(SUMMARY_NAMES),), np.float32),
             "object_points": spaces.Box(-b, b, (M, 3), np.float32),
         })
-        self._backend = self._loop = self._render_cams = None
+        from torm.env.cameras import MAX_DEPTH
+
+        H, W = cfg.image_size
+        extra: dict[str, spaces.Space] = {}
+        if cfg.obs_mode in ("rgb", "rgbd"):
+            extra["overview_rgb"] = spaces.Box(0, 255, (H, W, 3), np.uint8)
+        if cfg.obs_mode == "rgbd":
+            extra["overview_depth"] = spaces.Box(0.0, MAX_DEPTH, (H, W), np.float32)
+        if cfg.obs_mode == "pointcloud":
+            extra["pointcloud_xyz"] = spaces.Box(-b, b, (cfg.pointcloud_points, 3), np.float32)
+            extra["pointcloud_rgb"] = spaces.Box(0, 255, (cfg.pointcloud_points, 3), np.uint8)
+        if cfg.privileged_state:
+            extra["true_target"] = spaces.Box(-b, b, (4,), np.float32)
+        self.observation_space = spaces.Dict({**self.observation_space.spaces, **extra})
+        self._backend = self._loop = self._render_cams = self._obs_cams = None
         self._key: tuple[str, int] | None = None
         self._perceived: tuple[Any, ...] | None = None
         self._grasps: list[Grasp] = []
@@ -274,19 +315,23 @@ class TormGraspSelectEnv(gym.Env):
             lo, hi = backend.gripper.force_range_n
             self._pick = dataclasses.replace(trial.pick, grip_force=min(max(float(realism.grip_force_n), lo), hi))
         self._tool = ToolFrame.from_robot_config(backend.robot_config)
-        if self.render_mode == "rgb_array":
+        world = backend.world
+        g = world.robot_config.gripper.geometry
+        kw = {"tcp_site": world.robot_config.arm.tcp_site, "approach_axis": str(g.approach_axis),
+              "closing_axis": str(g.closing_axis)}
+        if self.render_mode == "rgb_array" or cfg.obs_mode != "state":
             from torm.env.cameras import EnvCameras
 
-            world = backend.world
-            g = world.robot_config.gripper.geometry
-            self._render_cams = EnvCameras(world.model, world.data, *cfg.render_size,
-                                           tcp_site=world.robot_config.arm.tcp_site,
-                                           approach_axis=str(g.approach_axis), closing_axis=str(g.closing_axis))
+            if self.render_mode == "rgb_array":
+                self._render_cams = EnvCameras(world.model, world.data, *cfg.render_size, **kw)
+            if cfg.obs_mode != "state":
+                self._obs_cams = EnvCameras(world.model, world.data, *cfg.image_size, **kw)
 
     def _close_world(self) -> None:
-        if self._render_cams is not None:
-            self._render_cams.close()
-            self._render_cams = None
+        for cams in (self._render_cams, self._obs_cams):
+            if cams is not None:
+                cams.close()
+        self._render_cams = self._obs_cams = None
         if self._backend is not None:
             self._backend.close()
         self._backend = self._loop = None
@@ -381,6 +426,9 @@ class TormGraspSelectEnv(gym.Env):
                                else np.zeros(len(SUMMARY_NAMES), np.float32)),
             "object_points": (sub - self._centroid).astype(np.float32),
         }
+        self._obs.update(self._sensor_observation(layout))
+        if cfg.privileged_state:
+            self._obs["true_target"] = self._true_target(cloud)
         realism = getattr(self._backend, "realism", None)
         info: dict[str, Any] = {
             "scenario": scenario, "layout_seed": layout, "perception": cfg.perception, "segmenter": cfg.segmenter,
@@ -391,6 +439,7 @@ class TormGraspSelectEnv(gym.Env):
             "action_mask": self.action_masks(),
         }
         self._done = False
+        close_at_exit(self)  # an env left open is closed at exit before EGL terminates (torm.runtime)
         return self._observation(), info
 
     def action_masks(self) -> np.ndarray:
@@ -439,15 +488,47 @@ class TormGraspSelectEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array" or self._render_cams is None:
             return None
-        return self._render_cams.render(["scene"], depth=False)["scene_rgb"]
+        img = self._render_cams.render(["scene"], depth=False)["scene_rgb"]
+        close_at_exit(self)
+        return img
 
     def close(self) -> None:
         self._close_world()
 
     # ------------------------------------------------------------------------------------------ internals
+    def _sensor_observation(self, layout: int) -> dict[str, np.ndarray]:
+        """The ``obs_mode``'s overview-camera data of the scene as it rests now (the module docstring)."""
+        cfg, cams = self.config, self._obs_cams
+        if cfg.obs_mode == "state" or cams is None:
+            return {}
+        if cfg.obs_mode == "pointcloud":
+            xyz, rgb = cams.pointcloud(["overview"], cfg.pointcloud_points, np.random.default_rng(layout))
+            return {"pointcloud_xyz": xyz, "pointcloud_rgb": rgb}
+        imgs = cams.render(["overview"], depth=cfg.obs_mode == "rgbd")
+        out = {"overview_rgb": imgs["overview_rgb"]}
+        if cfg.obs_mode == "rgbd":
+            out["overview_depth"] = imgs["overview_depth"]
+        return out
+
+    def _true_target(self, cloud: ObjectPointCloud | None) -> np.ndarray:
+        """(4,) float32: the real object nearest the perceived target's centroid (position m, 1.0), zeros for a
+        phantom or nothing perceived. Ground truth: only with ``privileged_state``."""
+        if cloud is None:
+            return np.zeros(4, np.float32)
+        gt = self._backend.ground_truth
+        c = cloud.points_nx3.mean(axis=0)
+        poses = [np.asarray(T)[:3, 3] for T in gt.object_poses().values()]
+        if not poses:
+            return np.zeros(4, np.float32)
+        d = [float(np.linalg.norm(p[:2] - c[:2])) for p in poses]
+        k = int(np.argmin(d))
+        if d[k] > PHANTOM_DISTANCE:
+            return np.zeros(4, np.float32)
+        return np.array([*poses[k], 1.0], np.float32)
+
     def _observation(self) -> dict[str, np.ndarray]:
-        return {k: (np.clip(v, -FEATURE_BOUND, FEATURE_BOUND) if v.dtype == np.float32 else v.copy())
-                for k, v in self._obs.items()}
+        return {k: (np.clip(v, -FEATURE_BOUND, FEATURE_BOUND) if v.dtype == np.float32 and k != "overview_depth"
+                    else v.copy()) for k, v in self._obs.items()}
 
     def _check_action(self, action) -> int:
         K = self.config.top_k

@@ -72,6 +72,7 @@ from torm.errors import ConfigError, UnknownNameError
 from torm.execution.errors import PhysicsError
 from torm.execution.ik import IKConfig
 from torm.execution.success import SuccessCriteria
+from torm.runtime import close_at_exit
 
 log = logging.getLogger(__name__)
 
@@ -365,6 +366,7 @@ class TormPickEnv(gym.Env):
         realism = self._backend.realism
         info.update(layout_seed=self._layout, realism=self.config.realism,
                     realism_drawn=realism.as_dict() if realism is not None else {"profile": "ideal"})
+        close_at_exit(self)  # an env left open is closed at exit before EGL terminates (torm.runtime)
         return self._observation(), info
 
     def step(self, action):
@@ -418,7 +420,9 @@ class TormPickEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array" or self._render_cams is None:
             return None
-        return self._render_cams.render(["scene"], depth=False)["scene_rgb"]
+        img = self._render_cams.render(["scene"], depth=False)["scene_rgb"]
+        close_at_exit(self)
+        return img
 
     def close(self) -> None:
         self._free_cameras()
