@@ -22,6 +22,14 @@ from torm.segmentation.grounded_sam import GroundedSAMConfig, GroundedSAMSegment
 RENDER = Path(__file__).resolve().parent / "data" / "learned_seg_view.png"  # a committed PBR render, 320x192
 
 
+def _cfg(folder: Path) -> dict:
+    """The exported grounded_sam.yaml with its paths (relative to the file's folder) resolved, as torm loads it."""
+    from torm.segmentation import resolve_config_paths
+
+    path = folder / "grounded_sam.yaml"
+    return resolve_config_paths("grounded_sam", yaml.safe_load(path.read_text()), path)
+
+
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     out = tmp_path_factory.mktemp("gsam")
@@ -31,16 +39,26 @@ def exported(tmp_path_factory):
 
 
 def test_export_writes_models_cards_and_a_config(exported):
-    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    cfg = _cfg(exported)
     for key in ("gdino_model", "sam_encoder", "sam_decoder", "bert_vocab"):
         assert Path(cfg[key]).is_file(), key
     card = json.loads((exported / "grounding_dino.onnx.json").read_text())
     assert card["opset"] == 17 and len(card["sha256"]) == 64 and card["licence"] == "Apache-2.0"
-    assert card["inputs"]["img"] == [1, 3, 128, 160] and card["inputs"]["text_token_mask"][1:] == [8, 8]
+    assert card["inputs"]["img"] == [1, 3, 128, 160] and card["inputs"]["text_token_mask"][1:] == [32, 32]
+    assert card["max_tokens"] == 32 and card["random_weights"] is True and card["source_files_sha256"] is None
+    raw = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    assert raw["gdino_model"] == "grounding_dino.onnx" and raw["bert_vocab"] == "vocab.txt"  # relative to the YAML
+    assert card["vocab_size"] == 30522 and card["vocab_file"] == "vocab.txt"
+    import hashlib
+
+    assert card["vocab_sha256"] == hashlib.sha256((exported / "vocab.txt").read_bytes()).hexdigest()
+    assert card["special_token_ids"] == {"[PAD]": 0, "[CLS]": 101, "[SEP]": 102, ".": 1012}
+    for name in ("sam_encoder.onnx.json", "sam_decoder.onnx.json"):
+        assert json.loads((exported / name).read_text())["random_weights"] is True
 
 
 def test_exported_models_segment_a_render_through_torm(exported):
-    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    cfg = _cfg(exported)
     seg = GroundedSAMSegmenter(GroundedSAMConfig(**cfg, box_threshold=0.0, text_threshold=0.0, max_detections=3))
     rgb = cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB)
     timings: dict[str, float] = {}
@@ -56,8 +74,8 @@ def test_exported_graphs_reproduce_pytorch(exported):
     from torm.segmentation.tokenizer import WordPieceTokenizer, grounding_text_inputs
 
     g, s = load_models(random_weights=True, tiny=True)  # the same seeded weights the export used
-    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
-    t = grounding_text_inputs(WordPieceTokenizer.from_file(cfg["bert_vocab"]), cfg["prompt"])
+    cfg = _cfg(exported)
+    t = grounding_text_inputs(WordPieceTokenizer.from_file(cfg["bert_vocab"]), cfg["prompt"], pad_to=32)
     img = np.random.default_rng(1).normal(size=(1, 3, 128, 160)).astype(np.float32)
     feeds = {"img": img, "input_ids": t.input_ids, "attention_mask": t.attention_mask,
              "position_ids": t.position_ids, "token_type_ids": t.token_type_ids,
@@ -86,7 +104,7 @@ def test_exported_graphs_reproduce_pytorch(exported):
 
 
 def test_a_file_of_the_wrong_kind_names_the_expected_signature(exported):
-    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    cfg = _cfg(exported)
     cfg["gdino_model"] = cfg["sam_encoder"]
     with pytest.raises(ModelFileError, match=r"grounded_sam.gdino_model .*input_ids"):
         GroundedSAMSegmenter(GroundedSAMConfig(**cfg))
@@ -94,7 +112,7 @@ def test_a_file_of_the_wrong_kind_names_the_expected_signature(exported):
 
 def test_hybrid_prompting_learned_boxes_prompt_sam(exported):
     """box_source: learned: the learned segmenter's instances prompt SAM (no Grounding DINO, no vocabulary)."""
-    cfg = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
+    cfg = _cfg(exported)
     seg = GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=cfg["sam_encoder"], sam_decoder=cfg["sam_decoder"],
                                                  box_source="learned"))
     rgb = cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB)
@@ -121,7 +139,7 @@ def exported_sam2(tmp_path_factory):
 
 
 def test_sam2_exports_run_through_torm_with_learned_boxes(exported_sam2):
-    cfg = yaml.safe_load((exported_sam2 / "grounded_sam.yaml").read_text())
+    cfg = _cfg(exported_sam2)
     assert cfg["box_source"] == "learned" and "gdino_model" not in cfg
     card = json.loads((exported_sam2 / "sam2_encoder.onnx.json").read_text())
     assert card["sam_kind"] == "sam2" and card["source"] == "facebook/sam2.1-hiera-tiny"
@@ -163,8 +181,8 @@ def test_sam2_graphs_reproduce_pytorch(exported_sam2):
 
 
 def test_a_sam_encoder_with_a_sam2_decoder_is_a_named_error(exported, exported_sam2):
-    sam1 = yaml.safe_load((exported / "grounded_sam.yaml").read_text())
-    sam2 = yaml.safe_load((exported_sam2 / "grounded_sam.yaml").read_text())
+    sam1 = _cfg(exported)
+    sam2 = _cfg(exported_sam2)
     with pytest.raises(ModelFileError, match="SAM encoder but the decoder .* is a SAM 2 decoder.*--sam-kind"):
         GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=sam1["sam_encoder"], sam_decoder=sam2["sam_decoder"],
                                                box_source="learned"))

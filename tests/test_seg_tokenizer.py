@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from torm.errors import ModelFileError
+from torm.errors import ConfigError, ModelFileError
 from torm.segmentation.boxes import box_iou, cxcywh_to_xyxy, nms
 from torm.segmentation.tokenizer import WordPieceTokenizer, grounding_text_inputs, normalize_caption
 
@@ -45,14 +45,17 @@ def test_grounding_inputs_match_the_official_phrase_masks(tok):
     np.testing.assert_array_equal(m, expected)
 
 
-def test_padding_and_truncation(tok):
+def test_padding_and_refusing_long_prompts(tok):
     t = grounding_text_inputs(tok, "clear glass.", pad_to=8)
     np.testing.assert_array_equal(t.input_ids[0], [2, 7, 8, 4, 3, 0, 0, 0])
     np.testing.assert_array_equal(t.attention_mask[0], [1, 1, 1, 1, 1, 0, 0, 0])
     assert t.n_real == 5 and t.length == 8
     np.testing.assert_array_equal(t.self_attention_mask[0, 5:], np.eye(8, dtype=bool)[5:])  # pads see themselves
-    short = grounding_text_inputs(tok, "clear glass. transparent object.", max_text_len=5)
-    np.testing.assert_array_equal(short.input_ids[0], [2, 7, 8, 4, 3])
+    # a prompt that does not fit is refused with its token count, never cut (issue 60)
+    with pytest.raises(ConfigError, match=r"has 10 tokens .* max_text_len is 5; it is not cut"):
+        grounding_text_inputs(tok, "clear glass. transparent object.", max_text_len=5)
+    with pytest.raises(ConfigError, match=r"has 10 tokens .* static token count is 8.*--max-tokens 10"):
+        grounding_text_inputs(tok, "clear glass. transparent object.", pad_to=8)
     assert normalize_caption("  A cup ") == "a cup."
 
 

@@ -32,7 +32,9 @@ with more than :data:`MAX_LABELS` ids is warned about; frames without masks; 16-
 ``depth_unit_scale_factor`` (default 1e-3, i.e. millimetres). A lens model with distortion (``camera_model``
 OPENCV, OPENCV_FISHEYE, SIMPLE_RADIAL or RADIAL with ``k1``... at the top level or per frame) is undone when the
 frame is loaded: images, masks and depth are resampled onto the pinhole camera with the same intrinsics
-(:mod:`torm.capture.lens`), and ``metadata["undistorted"]`` says so; an unknown model is an error.
+(:mod:`torm.capture.lens`), and ``metadata["undistorted"]`` says so; pixels left without a source are "no
+evidence" (:func:`torm.capture.lens.no_evidence_masks`), which every segmenter's masks and the reconstruction
+respect; an unknown model or lens coefficient is an error.
 Inconsistent folders raise :class:`~torm.errors.CaptureError` naming the offending file.
 """
 
@@ -425,7 +427,7 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
             ref = undistort(ref, mp) if ref is not None else None
             mask = undistort(mask, mp, nearest=True) if mask is not None else None
             depths = {k: undistort(d, mp, nearest=True) if d is not None else None for k, d in depths.items()}
-            undistorted.setdefault(json.dumps(lens.to_json(), sort_keys=True), []).append(i)
+            undistorted.setdefault(json.dumps(lens.to_json(), sort_keys=True), []).append((i, label))
         T = _frame_pose(frame, where)
         try:
             out.append(CameraView(K=K, T_world_cam=T, rgb=rgb, mask=mask, name=label, reference_rgb=ref, **depths))
@@ -447,7 +449,9 @@ def load_capture(folder: str | Path, views: Sequence[int] | None = None) -> Capt
     seed = doc.get("seed")
     meta = dict(doc.get("metadata") or {})
     if undistorted:
-        meta["undistorted"] = [{**json.loads(k), "frames": v} for k, v in undistorted.items()]
+        # the view names let no_evidence_masks find each view's lens again (after subset, segmentation, a reload)
+        meta["undistorted"] = [{**json.loads(k), "frames": [i for i, _ in v], "names": [n for _, n in v]}
+                               for k, v in undistorted.items()]
         log.info("%s: lens distortion undone on %d frame(s) (%s)", tpath, sum(len(v) for v in undistorted.values()),
                  "; ".join(k for k in undistorted))
     try:

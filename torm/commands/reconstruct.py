@@ -63,29 +63,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _silhouette_metrics(views: list[Any], mesh: Any, H: int, W: int) -> dict[str, Any]:
-    """Silhouette IoU of ``mesh`` rendered in ``views`` vs their masks (> 0), at the capture resolution."""
+def _silhouette_metrics(views: list[Any], mesh: Any, H: int, W: int,
+                        unknown_vxhxw: np.ndarray | None = None) -> dict[str, Any]:
+    """Silhouette IoU of ``mesh`` rendered in ``views`` vs their masks (> 0), at the capture resolution; pixels
+    marked in ``unknown_vxhxw`` (no evidence: no source after undistortion) count neither way."""
     from torm.metrics import silhouette_iou
     from torm.reconstruction.raster import render_mask_fast
 
     pred = np.stack([render_mask_fast(mesh.verts_vx3, mesh.faces_fx3, v.K, v.T_cam_world, H, W) for v in views])
-    iou = silhouette_iou(pred, np.stack([v.mask for v in views]) > 0)
+    target = np.stack([v.mask for v in views]) > 0
+    if unknown_vxhxw is not None:
+        pred, target = pred & ~unknown_vxhxw, target & ~unknown_vxhxw
+    iou = silhouette_iou(pred, target)
     return {"n_views": len(views), "silhouette_iou_mean": iou["mean"], "silhouette_iou_min": iou["min"],
             "per_view": iou["per_view"]}
 
 
 def _evaluate(capture: Any, used: list[int], held: list[int], mesh: Any, reference: str) -> dict[str, Any]:
     """Fit on the input views, IoU on the held-out views, and depth metrics vs the capture's ideal depth."""
+    from torm.capture.lens import no_evidence_masks
     from torm.metrics import depth_metrics
     from torm.reconstruction.raster import render_depth
 
     H, W = capture.image_size
+    unknown = no_evidence_masks(capture)
     out: dict[str, Any] = {"n_objects_present": len(capture.object_ids) or None, "mask_reference": reference}
     views = capture.views
-    out["fit_input_views"] = {**_silhouette_metrics([views[i] for i in used], mesh, H, W),
+    out["fit_input_views"] = {**_silhouette_metrics([views[i] for i in used], mesh, H, W,
+                                                    None if unknown is None else unknown[used]),
                               "note": "IoU on the views the reconstruction was fitted to (not a held-out score)"}
     if held:
-        out["heldout"] = {**_silhouette_metrics([views[i] for i in held], mesh, H, W), "views": held,
+        out["heldout"] = {**_silhouette_metrics([views[i] for i in held], mesh, H, W,
+                                                None if unknown is None else unknown[held]), "views": held,
                           "note": "held-out views: IoU on views left out of the reconstruction's input"}
     if all(v.depth is not None and v.mask is not None for v in views):
         depth = np.stack([render_depth(mesh.verts_vx3, mesh.faces_fx3, v.K, v.T_cam_world, H, W) for v in views])

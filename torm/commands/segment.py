@@ -65,14 +65,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def load_segmenter_config(name: str, path: str | None, overrides: list[str]) -> Any:
-    """The segmenter's frozen config from an optional YAML file (flat or under ``name:``) and overrides."""
+    """The segmenter's frozen config from an optional YAML file (flat or under ``name:``) and overrides; relative
+    file paths in the file are relative to its folder."""
     from torm import config as cfgmod
-    from torm.segmentation import segmenter_config_class
+    from torm.segmentation import resolve_config_paths, segmenter_config_class
 
     cls = segmenter_config_class(name)
     data: dict[str, Any] = cfgmod.load_yaml(path) if path else {}
     if isinstance(data.get(name), dict):
         data = data[name]
+    if path:  # file paths in the YAML are relative to its own folder (as torm export-models writes them)
+        data = resolve_config_paths(name, data, path)
     return cfgmod.from_dict(cls, data, overrides, where=str(path) if path else name)
 
 

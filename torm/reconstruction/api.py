@@ -79,6 +79,7 @@ from typing import Annotated, Literal
 import numpy as np
 from scipy import ndimage
 
+from torm.capture.lens import no_evidence_masks
 from torm.config import Range, check_finite
 from torm.errors import CaptureError, ConfigError, ReconstructionError
 from torm.mesh import sample_objects
@@ -123,6 +124,7 @@ class _EvalViews:
     K: np.ndarray
     T_cw: np.ndarray
     renders: list = field(default_factory=list)  # renders of the selected mesh when already made (fast mode)
+    unknown: np.ndarray | None = None  # (n, h, w) bool: pixels with no evidence (no source after undistortion)
 #: Above this many distinct ids in one view a mask is probably not an instance map (a warning is logged).
 MAX_IDS_PER_VIEW = 48
 
@@ -424,14 +426,16 @@ def _concat(meshes: list[TriMesh]) -> TriMesh:
 # ----------------------------------------------------------------------------------------------------------
 # The modes
 # ----------------------------------------------------------------------------------------------------------
-def _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings) -> tuple[np.ndarray, ProjectiveSDF]:
+def _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings,
+               unknown=None) -> tuple[np.ndarray, ProjectiveSDF]:
     """Fast mode, steps 1-2: consensus objects on the ``grid_res`` lattice, then the repaired silhouettes.
 
     Returns the repaired (V, H, W) silhouettes and their strict (``fine_vote_views``) projective SDF, which
-    shares the distance transforms of the views the repair left alone.
+    shares the distance transforms of the views the repair left alone. ``unknown`` ((V, H, W) bool or None):
+    pixels without evidence, where a view abstains (:class:`ProjectiveSDF`).
     """
     t = time.perf_counter()
-    field_ = ProjectiveSDF(sil, Ks, poses, roi_bounds_2x3=bounds, vote_views=vote)
+    field_ = ProjectiveSDF(sil, Ks, poses, roi_bounds_2x3=bounds, vote_views=vote, unknown_vxhxw=unknown)
     timings["distance_transforms"] = time.perf_counter() - t
     t = time.perf_counter()
     n = np.asarray(cells_per_axis(bounds, config.grid_res))
@@ -587,6 +591,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
     timings: dict[str, float] = {}
     t = time.perf_counter()
     inst = validate_capture(capture)
+    unknown = no_evidence_masks(capture)  # (V, H, W) bool or None: pixels without a source after undistortion
     Ks, poses = capture.Ks(), capture.poses()
     # A view whose mask is entirely empty while most views see objects is a segmenter miss, not evidence that
     # the workspace is empty: with one object in the scene, such views alone could carve it away.
@@ -596,7 +601,10 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
         log.info("ignoring %d view(s) with empty masks: %s", len(ignored), ignored[:10])
         keep = np.flatnonzero(~empty)
         inst, Ks, poses = inst[keep], Ks[keep], poses[keep]
-    sil = inst > 0
+        unknown = None if unknown is None else unknown[keep]
+    # A pixel without evidence says nothing, like a point outside the image (visual_hull's outside_image="unknown"):
+    # for the intersection of silhouette cones that is "inside" (it never carves); the fit ignores those pixels.
+    sil = inst > 0 if unknown is None else (inst > 0) | unknown
     V = len(sil)
     vote = config.vote_views if config.vote_views is not None else auto_vote_views(V)
     if config.vote_tolerance is not None:
@@ -614,12 +622,19 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
              "no table" if table_z is None else f"table z = {table_z} m", vote, threads)
     history: dict[str, list[float]] = {}
     idx = np.unique(np.linspace(0, V - 1, min(V, EVAL_VIEWS)).round().astype(np.int64))
-    sup, sup_K = downsample_masks(sil[idx], Ks[idx], config.mask_res)
-    ev = _EvalViews(idx, sup, sup_K, np.linalg.inv(poses[idx]))
+    ev_unknown = None
+    if unknown is None:
+        sup, sup_K = downsample_masks(sil[idx], Ks[idx], config.mask_res)
+    else:
+        sup, sup_K = downsample_masks(sil[idx] & ~unknown[idx], Ks[idx], config.mask_res)
+        ev_unknown = downsample_masks(unknown[idx], Ks[idx], config.mask_res)[0] > 0.0
+        sup[ev_unknown] = 0.0
+        info["no_evidence_px"] = int(unknown.sum())
+    ev = _EvalViews(idx, sup, sup_K, np.linalg.inv(poses[idx]), unknown=ev_unknown)
     if config.mode == "carve":
         mesh = _carve(sil, Ks, poses, bounds, table_z, config, info, timings)
     else:
-        repaired, fine = _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings)
+        repaired, fine = _consensus(sil, Ks, poses, bounds, table_z, vote, config, info, timings, unknown)
         if config.mode == "fast" and config.refine_iters == 0:
             mesh = _fast_band(fine, Ks, poses, bounds, table_z, config, ev, sil.shape[2], info, timings)
         else:
@@ -638,7 +653,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
     H, W = sil.shape[1:]
     n_min = config.min_views_per_object or max(3, math.ceil(0.2 * V))
     checks = check_objects(comps, Ks, poses, (H, W), bounds, min_views=n_min, box_tol=0.75 * info["cell_m"],
-                           floor_z=table_z)
+                           floor_z=table_z, unknown_vxhxw=unknown)
     objects = [m for m, c in zip(comps, checks, strict=True) if c["ok"]]
     info["rejected_objects"] = [c for c in checks if not c["ok"]]
     info["dropped_components"] = dropped
@@ -661,6 +676,8 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
     else:
         renders = np.stack([render_mask_fast(scene.verts_vx3, scene.faces_fx3, ev.K[i], ev.T_cw[i], h, w)
                             for i in range(len(ev.K))])
+    if ev.unknown is not None:  # pixels without evidence count neither way
+        renders = renders & ~ev.unknown
     ious = [silhouette_iou(r, m) for r, m in zip(renders, ev.masks, strict=True)]
     info["silhouette_iou_mean"] = float(np.mean(ious))
     info["silhouette_iou_min"] = float(np.min(ious))

@@ -116,21 +116,27 @@ def repair_masks(silhouettes_vxhxw: np.ndarray, Ks_vx3x3: np.ndarray, T_world_ca
 
 def check_objects(meshes: list[TriMesh], Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, hw: tuple[int, int],
                   bounds_2x3: np.ndarray, *, min_views: int, box_tol: float, floor_z: float | None = None,
-                  max_points: int = 400) -> list[dict]:
+                  max_points: int = 400, unknown_vxhxw: np.ndarray | None = None) -> list[dict]:
     """Per component: views it lies in, views that see it whole, box contact, and a verdict.
 
     A component "lies in" a view when most of its vertices project in front of the camera and inside
     the image, and is seen "whole" when all of them do. It touches the box when a vertex lies within
     ``box_tol`` (m) of a box face; the floor face does not count when ``floor_z`` (the table) is at or
     above it (objects stand on the table). Verdict ``ok`` is False with a ``reason`` when the component
-    lies in fewer than ``min_views`` views or touches the box.
+    lies in fewer than ``min_views`` views or touches the box. A vertex that projects onto a pixel marked in
+    ``unknown_vxhxw`` ((V, H, W) bool, no evidence: no source after undistortion) counts as outside that image.
     """
     b = np.asarray(bounds_2x3, dtype=np.float64)
     out = []
     for m in meshes:
         v = m.verts_vx3
         sel = v[np.linspace(0, len(v) - 1, min(len(v), max_points)).astype(np.int64)]
-        _, _, inside = project_views(sel, Ks_vx3x3, T_world_cam_vx4x4, hw)
+        uv, _, inside = project_views(sel, Ks_vx3x3, T_world_cam_vx4x4, hw)
+        if unknown_vxhxw is not None:
+            vi, pi = np.nonzero(inside)
+            cols = np.floor(uv[vi, pi, 0]).astype(np.int64)
+            rows = np.floor(uv[vi, pi, 1]).astype(np.int64)
+            inside[vi, pi] = ~unknown_vxhxw[vi, rows, cols]
         frac = inside.mean(axis=1)
         seen = np.flatnonzero(frac >= 0.5)
         cut = [int(i) for i in seen if frac[i] < 1.0]

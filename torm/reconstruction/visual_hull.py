@@ -18,6 +18,9 @@ Points that project outside the image or lie behind the camera (z <= ``near``) c
 information from that view by default (``outside_image="unknown"``): in our captures the masks
 cover the workspace, and treating "outside the image" as "outside the object" would wrongly carve
 partially visible scenes. ``outside_image="outside"`` carves them instead (classic visual hull).
+Pixels marked as no evidence (``unknown_vxhxw`` of :class:`ProjectiveSDF`: no source pixel after the lens
+distortion was undone, :func:`torm.capture.lens.no_evidence_masks`) are treated the same way: a point whose
+bilinear sample touches one abstains in that view (it is not counted among the views that see it).
 A vertex no view sees gets ``+unseen_value`` (outside).
 """
 
@@ -111,6 +114,8 @@ def _accumulate_view(pts_nx3, R_3x3, t_3, fx, fy, cx, cy, W, H, near, sd_hxw, r0
         ay = ys - y0
         val = ((sd_hxw[y0, x0] * (1.0 - ax) + sd_hxw[y0, x1] * ax) * (1.0 - ay)
                + (sd_hxw[y1, x0] * (1.0 - ax) + sd_hxw[y1, x1] * ax) * ay)
+        if val != val:  # NaN: a pixel without evidence (no source after undistortion) - no information
+            continue
         if not inside_img:
             du = max(0.0, -u) + max(0.0, u - W)
             dv = max(0.0, -v) + max(0.0, v - H)
@@ -162,11 +167,15 @@ class ProjectiveSDF:
         outside_image: ``"unknown"`` (a view says nothing about points outside its image) or ``"outside"``.
         near: points with camera z <= near (m) are behind the camera: no information.
         precise: exact Euclidean distance transform (slower) instead of the 5x5 chamfer approximation.
+        unknown_vxhxw: (V, H, W) bool pixels without evidence, or None: a point projecting there gets no
+            information from that view, as outside the image (the distance transform counts them as inside,
+            so no background distance is measured from a boundary that may not exist).
     """
 
     def __init__(self, masks_vxhxw: np.ndarray, Ks_vx3x3: np.ndarray, T_world_cam_vx4x4: np.ndarray, *,
                  roi_bounds_2x3: np.ndarray | None = None, vote_tol: float = 0.15, vote_views: int | None = None,
-                 outside_image: str = "unknown", near: float = 1e-3, precise: bool = False) -> None:
+                 outside_image: str = "unknown", near: float = 1e-3, precise: bool = False,
+                 unknown_vxhxw: np.ndarray | None = None) -> None:
         masks = np.asarray(masks_vxhxw)
         Ks = np.asarray(Ks_vx3x3, dtype=np.float64)
         Ts = np.asarray(T_world_cam_vx4x4, dtype=np.float64)
@@ -193,17 +202,30 @@ class ProjectiveSDF:
         self.near = float(near)
         self.k_max = 1 + (min(int(vote_views), max(n_views - 1, 0) // 2) if vote_views is not None
                           else math.floor(vote_tol * n_views))
+        if unknown_vxhxw is not None and np.shape(unknown_vxhxw) != masks.shape:
+            raise ReconstructionError(f"visual hull: unknown_vxhxw has shape {np.shape(unknown_vxhxw)} but the masks "
+                                      f"{masks.shape}; give one no-evidence map per mask")
         self._roi, self._Ks, self._precise = roi_bounds_2x3, Ks, precise
-        self._views = [self._view(masks[v], Ks[v], Ts[v]) for v in range(n_views)]
+        self._unknown = None if unknown_vxhxw is None else np.asarray(unknown_vxhxw, dtype=bool)
+        self._views = [self._view(masks[v], Ks[v], Ts[v], self._unknown_of(v)) for v in range(n_views)]
 
-    def _view(self, mask_hxw: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> tuple:
+    def _unknown_of(self, v: int) -> np.ndarray | None:
+        return None if self._unknown is None or not self._unknown[v].any() else self._unknown[v]
+
+    def _view(self, mask_hxw: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray,
+              unknown_hxw: np.ndarray | None = None) -> tuple:
         T_cw = np.linalg.inv(T_world_cam)
         R, t = T_cw[:3, :3].copy(), T_cw[:3, 3].copy()
         # distance transform only over the window the region projects into (sign exact; distances
         # can only ignore mask pixels outside the window, i.e. outside the projected region)
         r0, r1, c0, c1 = ((0, self.H, 0, self.W) if self._roi is None else
                           _crop_window(self._roi[0], self._roi[1], R, t, K, self.near, self.H, self.W))
-        sd = signed_distance_px(mask_hxw[r0:r1, c0:c1] > 0, precise=self._precise)
+        if unknown_hxw is None:
+            sd = signed_distance_px(mask_hxw[r0:r1, c0:c1] > 0, precise=self._precise)
+        else:  # no-evidence pixels: inside for the distances, NaN (abstain) when sampled
+            unk = unknown_hxw[r0:r1, c0:c1]
+            sd = signed_distance_px((mask_hxw[r0:r1, c0:c1] > 0) | unk, precise=self._precise)
+            sd[unk] = np.nan
         return (R, t, K[0, 0], K[1, 1], K[0, 2], K[1, 2], sd, r0, c0, T_world_cam)
 
     def derive(self, *, vote_views: int | None, masks_vxhxw: np.ndarray | None = None,
@@ -216,7 +238,7 @@ class ProjectiveSDF:
                          else math.floor(self.vote_tol * self.n_views))
         out._views = list(self._views)
         for v in changed_views:
-            out._views[v] = self._view(np.asarray(masks_vxhxw[v]), self._Ks[v], self._views[v][-1])
+            out._views[v] = self._view(np.asarray(masks_vxhxw[v]), self._Ks[v], self._views[v][-1], self._unknown_of(v))
         return out
 
     def _top(self, points_nx3: np.ndarray, k_max: int) -> tuple[np.ndarray, np.ndarray]:

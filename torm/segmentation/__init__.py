@@ -15,7 +15,9 @@ the masks into union silhouettes and can flag views inconsistent with the others
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from torm.config import from_dict
@@ -27,6 +29,34 @@ from torm.segmentation.quality import mask_quality
 
 #: registry names; grounded_sam and learned are imported lazily (onnxruntime).
 from torm.vocabulary import SEGMENTERS  # noqa: E402  (one definition, re-exported)
+
+log = logging.getLogger(__name__)
+
+
+#: config keys that hold file paths, per segmenter: relative ones in a YAML file are relative to the file's folder
+PATH_KEYS: dict[str, tuple[str, ...]] = {"grounded_sam": ("gdino_model", "bert_vocab", "sam_encoder", "sam_decoder")}
+
+
+def resolve_config_paths(name: str, data: Mapping[str, Any], yaml_path: str | Path) -> dict[str, Any]:
+    """``data`` (segmenter ``name``'s mapping read from ``yaml_path``) with its relative file paths
+    (:data:`PATH_KEYS`) made relative to the YAML file's own folder, as ``torm export-models`` writes them.
+
+    A path that does not exist there but does relative to the working directory (a config written before paths
+    were relative to their file) is kept as given, with a log line.
+    """
+    base = Path(yaml_path).resolve().parent
+    out = dict(data)
+    for key in PATH_KEYS.get(name, ()):
+        val = out.get(key)
+        if not isinstance(val, str) or not val or Path(val).is_absolute():
+            continue
+        here = base / val
+        if not here.exists() and Path(val).exists():
+            log.info("%s: %s=%s is not in %s but is relative to the working directory; kept (write paths relative "
+                     "to the config's folder)", yaml_path, key, val, base)
+            continue
+        out[key] = str(here)
+    return out
 
 
 def segmenter_config_class(name: str) -> type:
@@ -81,5 +111,5 @@ def make_segmenter(name: str, config: Any = None) -> Segmenter:
 __all__ = [
     "PRESETS", "SEGMENTERS", "Detection", "GTConfig", "GTSegmenter", "NoiseConfig", "NoisyConfig", "NoisySegmenter",
     "SegmentationResult", "Segmenter", "corrupt_masks", "make_segmenter", "mask_quality", "segment_capture",
-    "segmenter_config_class",
+    "resolve_config_paths", "segmenter_config_class",
 ]

@@ -80,19 +80,31 @@ class SegmentationResult:
 
     def apply(self, capture: Capture) -> Capture:
         """A copy of ``capture`` whose views carry these masks (replacing any ground-truth masks); its metadata's
-        :data:`MASK_SOURCE_KEY` names the segmenter, so the masks are never taken for ground truth later."""
+        :data:`MASK_SOURCE_KEY` names the segmenter, so the masks are never taken for ground truth later.
+
+        Pixels without evidence (no source pixel after the lens distortion was undone at load,
+        :func:`torm.capture.lens.no_evidence_masks`) hold no instance in the attached masks, whatever the segmenter
+        saw in the black border there; the capture's metadata keeps marking them, so the reconstruction ignores them
+        instead of reading them as background.
+        """
         if capture.image_size != tuple(self.masks_vxhxw.shape[1:]):
             raise SegmentationError(
                 f"masks are {self.masks_vxhxw.shape[1:]} (H, W) but the capture is {capture.image_size}; "
                 "segment the same capture you attach the masks to"
             )
+        from torm.capture.lens import no_evidence_masks
+
+        masks = self.masks_vxhxw
+        unknown = no_evidence_masks(capture)
+        if unknown is not None and (masks[unknown] != 0).any():
+            masks = np.where(unknown, 0, masks).astype(np.int32)
         name = self.info.get("segmenter", "?")
         if name == "gt" and not self.info.get("phantoms"):
-            return capture.with_masks(self.masks_vxhxw)  # the capture's own masks: their source stays
+            return capture.with_masks(masks)  # the capture's own masks: their source stays
         source = f"segmenter {name}"
         if self.info.get("model_fingerprint"):
             source += f" ({self.info['model_fingerprint']})"
-        out = capture.with_masks(self.masks_vxhxw)
+        out = capture.with_masks(masks)
         return replace(out, metadata={**out.metadata, MASK_SOURCE_KEY: source})
 
     def summary(self) -> dict[str, Any]:

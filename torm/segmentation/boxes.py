@@ -92,6 +92,7 @@ def decode_grounding(
     max_box_fraction: float = 1.0,
     min_box_px: float = 2.0,
     max_detections: int = 100,
+    canvas_wh: tuple[float, float] | None = None,
 ) -> DecodedBoxes:
     """Turn Grounding DINO's per-query outputs into scored, phrase-labelled pixel boxes.
 
@@ -99,6 +100,9 @@ def decode_grounding(
         logits_qxl: (Q, L) token logits per query (L >= the text length; extra columns are ignored).
         boxes_qx4: (Q, 4) normalised cxcywh boxes.
         image_wh: (W, H) of the original image in pixels.
+        canvas_wh: (W, H) in original-image pixels of the canvas the boxes are normalised to, when the image was
+            letterboxed (resized keeping its aspect, padded at the right and bottom: :func:`letterbox_hw`); None =
+            the image itself.
         box_threshold: keep a query when its max token probability over real tokens is >= this.
         text_threshold: tokens above this form the query's phrase.
         nms_iou: IoU above which a lower-scoring box is suppressed.
@@ -112,7 +116,10 @@ def decode_grounding(
     scores = np.where(valid[None, :], probs[:, :T], 0.0).max(axis=1) if T else np.zeros(len(probs))
     keep = np.nonzero(scores >= box_threshold)[0]
     W, H = image_wh
-    boxes = cxcywh_to_xyxy(np.asarray(boxes_qx4)[keep], W, H)
+    cw, ch = canvas_wh if canvas_wh is not None else (W, H)
+    boxes = cxcywh_to_xyxy(np.asarray(boxes_qx4)[keep], cw, ch)
+    boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], 0.0, W)  # the padding holds no image
+    boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], 0.0, H)
     sc = scores[keep]
     wh = boxes[:, 2:] - boxes[:, :2]
     ok = (wh.min(axis=1) >= min_box_px) & (wh.prod(axis=1) <= max_box_fraction * W * H + 1e-9)

@@ -19,7 +19,13 @@ Weights: :func:`load_models` reads a local folder or the Hugging Face cache (``I
 ``facebook/sam-vit-base``; a machine with internet downloads them once); ``random_weights=True`` builds the same
 architectures from their configs with random weights, which is how the tests and the timing benchmark verify the
 export here (no weights can be downloaded on the build machines). Every export writes a model card
-(``<file>.json``: source, licence, sha256, opset, input and output names and shapes).
+(``<file>.json``: source, licence, sha256, opset, input and output names and shapes, ``random_weights``, the
+sha256 of every file of the source folder, and for Grounding DINO the vocabulary's size, sha256 and the special
+token ids the weights hard-code).
+
+Loading refuses what would export silently wrong: a checkpoint whose ``model_type`` is not the requested
+architecture (a SAM 2 folder given as SAM), and any checkpoint that leaves a weight freshly initialised (missing
+or shape-mismatched tensors, named) -- only ``random_weights=True`` builds a model whose weights are not loaded.
 """
 
 from __future__ import annotations
@@ -258,9 +264,10 @@ def _export(module: Any, args: tuple, names_in: list[str], names_out: list[str],
 
 
 def export_grounding_dino(model: Any, out: Path, image_hw: tuple[int, int] = (800, 1333), n_tokens: int = 8,
-                          source: str = GDINO_ID) -> ExportedModel:
+                          source: str = GDINO_ID, card_extra: dict[str, Any] | None = None) -> ExportedModel:
     """Export ``model`` (a ``GroundingDinoForObjectDetection``) at a static image size (H, W px) and token count
-    (the prompt's tokens with ``[CLS]``/``[SEP]``; torm pads to it). Returns the file and its card."""
+    (the maximum a prompt may have with ``[CLS]``/``[SEP]``; torm pads shorter ones and refuses longer ones).
+    ``card_extra``: more card fields (:func:`provenance`, :func:`vocab_card`). Returns the file and its card."""
     torch = _torch()
     h, w = image_hw
     ids = torch.full((1, n_tokens), 1012, dtype=torch.int64)
@@ -270,41 +277,45 @@ def export_grounding_dino(model: Any, out: Path, image_hw: tuple[int, int] = (80
             torch.eye(n_tokens, dtype=torch.bool)[None])
     names = ["img", "input_ids", "attention_mask", "position_ids", "token_type_ids", "text_token_mask"]
     card = {"model": "grounding_dino", "source": source, "licence": GDINO_LICENCE, "image_hw": [h, w],
-            "n_tokens": n_tokens, "config": model.config.to_diff_dict()}
+            "n_tokens": n_tokens, "max_tokens": n_tokens, **(card_extra or {}), "config": model.config.to_diff_dict()}
     return _export(_gdino_wrapper(model), args, names, ["logits", "boxes"], out, card)
 
 
 def export_sam(model: Any, encoder_out: Path, decoder_out: Path, multimask: bool = False,
-               source: str = SAM_ID) -> tuple[ExportedModel, ExportedModel]:
+               source: str = SAM_ID, card_extra: dict[str, Any] | None = None) -> tuple[ExportedModel, ExportedModel]:
     """Export ``model`` (a ``SamModel``) as torm's image encoder and segment-anything-style mask decoder
-    (``multimask``: 3 masks per prompt, else 1). Returns both files with their cards."""
+    (``multimask``: 3 masks per prompt, else 1); ``card_extra``: more card fields (:func:`provenance`). Returns
+    both files with their cards."""
     torch = _torch()
     size = int(model.config.vision_config.image_size)
     side = int(model.config.prompt_encoder_config.image_embedding_size)
     enc = _export(_sam_encoder_wrapper(model), (torch.randn(1, 3, size, size),), ["image"], ["image_embeddings"],
                   encoder_out, {"model": "sam_image_encoder", "source": source, "licence": SAM_LICENCE,
-                                "image_size": size, "config": model.config.vision_config.to_diff_dict()})
+                                "image_size": size, **(card_extra or {}),
+                                "config": model.config.vision_config.to_diff_dict()})
     args = (torch.randn(1, 256, side, side), torch.tensor([[[10.0, 20.0], [200.0, 300.0]]]),
             torch.tensor([[2.0, 3.0]]), torch.zeros(1, 1, 4 * side, 4 * side), torch.zeros(1),
             torch.tensor([480.0, 640.0]))
     names = ["image_embeddings", "point_coords", "point_labels", "mask_input", "has_mask_input", "orig_im_size"]
     dec = _export(_sam_decoder_wrapper(model, size, multimask), args, names,
                   ["masks", "iou_predictions", "low_res_masks"], decoder_out,
-                  {"model": "sam_mask_decoder", "source": source, "licence": SAM_LICENCE, "multimask": multimask},
+                  {"model": "sam_mask_decoder", "source": source, "licence": SAM_LICENCE, "multimask": multimask,
+                   **(card_extra or {})},
                   dynamic_axes={"point_coords": {1: "n_points"}, "point_labels": {1: "n_points"},
                                 "masks": {2: "height", 3: "width"}})
     return enc, dec
 
 
 def export_sam2(model: Any, encoder_out: Path, decoder_out: Path, multimask: bool = False,
-                source: str = SAM2_ID) -> tuple[ExportedModel, ExportedModel]:
+                source: str = SAM2_ID, card_extra: dict[str, Any] | None = None) -> tuple[ExportedModel, ExportedModel]:
     """Export ``model`` (a ``transformers`` ``Sam2Model``) as torm's SAM 2 image encoder (``image`` ->
     ``image_embeddings``, ``high_res_feats_0``, ``high_res_feats_1``) and mask decoder (the SAM decoder's inputs
-    plus the two feature maps). Returns both files with their cards (``sam_kind: sam2``)."""
+    plus the two feature maps); ``card_extra``: more card fields (:func:`provenance`). Returns both files with their
+    cards (``sam_kind: sam2``)."""
     torch = _torch()
     size = int(model.config.vision_config.backbone_config.image_size[0])
     side = int(model.config.prompt_encoder_config.image_size // model.config.prompt_encoder_config.patch_size)
-    base = {"source": source, "licence": SAM2_LICENCE, "sam_kind": "sam2"}
+    base = {"source": source, "licence": SAM2_LICENCE, "sam_kind": "sam2", **(card_extra or {})}
     enc = _export(_sam2_encoder_wrapper(model), (torch.randn(1, 3, size, size),), ["image"],
                   ["image_embeddings", "high_res_feats_0", "high_res_feats_1"], encoder_out,
                   {"model": "sam2_image_encoder", **base, "image_size": size,
@@ -324,6 +335,65 @@ def export_sam2(model: Any, encoder_out: Path, decoder_out: Path, multimask: boo
     return enc, dec
 
 
+#: ``model_type`` of each architecture's ``config.json``
+MODEL_TYPES = {"grounding_dino": "grounding-dino", "sam": "sam", "sam2": "sam2"}
+_NAMES = {"grounding_dino": "Grounding DINO", "sam": "SAM", "sam2": "SAM 2"}
+_FLAGS = {"grounding_dino": "--gdino", "sam": "--sam", "sam2": "--sam (with --sam-kind sam2)"}
+
+
+def _load_checked(cls: Any, source: str, kind: str) -> Any:
+    """``cls.from_pretrained(source)`` that refuses another architecture's checkpoint and any weight left freshly
+    initialised (missing or shape-mismatched tensors), naming them (:class:`ModelFileError`)."""
+    from transformers import AutoConfig
+
+    name, flag = _NAMES[kind], _FLAGS[kind]
+    try:
+        cfg = AutoConfig.from_pretrained(source)
+    except (OSError, ValueError, KeyError) as exc:
+        raise ModelFileError(f"cannot load {name} from {source!r} ({exc}); give a local folder with {flag}, run once "
+                             "on a machine with internet to fill the Hugging Face cache, or pass --random-weights to "
+                             "verify the export with the real architecture") from exc
+    if cfg.model_type != MODEL_TYPES[kind]:
+        other = {v: k for k, v in MODEL_TYPES.items()}.get(cfg.model_type)
+        hint = (f"export it with --sam-kind {other}" if other in ("sam", "sam2") and kind in ("sam", "sam2")
+                else f"point {flag} at a {name} checkpoint")
+        raise ModelFileError(f"{source} holds a {cfg.model_type!r} checkpoint, not {name} ({MODEL_TYPES[kind]!r}): "
+                             f"every weight would be freshly initialised; {hint}")
+    try:
+        model, info = cls.from_pretrained(source, output_loading_info=True)
+    except (OSError, ValueError, RuntimeError) as exc:
+        raise ModelFileError(f"cannot load {name} from {source!r} ({exc}); check the folder's files") from exc
+    missing = sorted(str(k) for k in info.get("missing_keys") or ())
+    missing += sorted(str(m[0] if isinstance(m, (tuple, list)) else m) for m in info.get("mismatched_keys") or ())
+    if missing:
+        shown = ", ".join(missing[:12]) + (f", ... ({len(missing)} in all)" if len(missing) > 12 else "")
+        raise ModelFileError(f"{source}: {len(missing)} {name} weight(s) are not in the checkpoint (or have another "
+                             f"shape) and would be freshly initialised: {shown}; give the complete checkpoint, or "
+                             "pass --random-weights for an export whose weights are all random")
+    return model.eval()
+
+
+def source_files_sha256(source: str) -> dict[str, str] | None:
+    """sha256 of every file (relative path -> hex) of a local model folder or of the Hugging Face cache's snapshot
+    of a model id; None when neither is found (nothing to hash)."""
+    folder = Path(source)
+    if not folder.is_dir():
+        try:
+            from huggingface_hub import snapshot_download
+
+            folder = Path(snapshot_download(source, local_files_only=True))
+        except Exception:  # noqa: BLE001 - no cache entry: the card says so (None)
+            return None
+    return {p.relative_to(folder).as_posix(): sha256(p) for p in sorted(folder.rglob("*"))
+            if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts)}
+
+
+def provenance(source: str, random_weights: bool) -> dict[str, Any]:
+    """The card fields that say where the weights come from: ``random_weights`` and the source files' sha256."""
+    return {"random_weights": bool(random_weights),
+            "source_files_sha256": None if random_weights else source_files_sha256(source)}
+
+
 def load_sam2(sam2: str = SAM2_ID, random_weights: bool = False, tiny: bool = False, seed: int = 0) -> Any:
     """SAM 2 as a ``transformers`` ``Sam2Model``: from ``sam2`` (a local folder or a Hugging Face id in the cache),
     or, with ``random_weights``, built from the default config (SAM 2.1 Hiera-Tiny's architecture) or, with
@@ -332,12 +402,7 @@ def load_sam2(sam2: str = SAM2_ID, random_weights: bool = False, tiny: bool = Fa
     from transformers import Sam2Config, Sam2Model
 
     if not random_weights:
-        try:
-            return Sam2Model.from_pretrained(sam2).eval()
-        except OSError as exc:
-            raise ModelFileError(f"cannot load SAM 2 from {sam2!r} ({exc}); give a local folder with --sam, run once "
-                                 "on a machine with internet to fill the Hugging Face cache, or pass "
-                                 "--random-weights to verify the export with the real architecture") from exc
+        return _load_checked(Sam2Model, sam2, "sam2")
     torch.manual_seed(seed)
     if tiny:
         cfg = Sam2Config(
@@ -365,18 +430,19 @@ def load_models(gdino: str | None = GDINO_ID, sam: str = SAM_ID, random_weights:
     Face id in the cache), or, with ``random_weights``, built from their default configs (the published
     architectures: Swin-T + BERT-base Grounding DINO, SAM ViT-B) or, with ``tiny``, from small configs of the
     same classes (tests). Random weights are drawn from a generator seeded with ``seed``. ``with_sam`` /
-    ``with_gdino`` False: that model is not loaded (None in its place)."""
+    ``with_gdino`` False: that model is not loaded (None in its place).
+
+    Raises:
+        ModelFileError: a checkpoint of another architecture, or one that leaves weights freshly initialised
+            (named); or no checkpoint found.
+    """
     torch = _torch()
     from transformers import GroundingDinoConfig, GroundingDinoForObjectDetection, SamConfig, SamModel
 
     if not random_weights:
-        try:
-            return (GroundingDinoForObjectDetection.from_pretrained(gdino).eval() if with_gdino else None,
-                    SamModel.from_pretrained(sam).eval() if with_sam else None)
-        except OSError as exc:
-            raise ModelFileError(f"cannot load the models ({exc}); give local folders with --gdino/--sam, run once "
-                                 "on a machine with internet to fill the Hugging Face cache, or pass "
-                                 "--random-weights to verify the export with the real architectures") from exc
+        return (_load_checked(GroundingDinoForObjectDetection, gdino or GDINO_ID, "grounding_dino")
+                if with_gdino else None,
+                _load_checked(SamModel, sam, "sam") if with_sam else None)
     torch.manual_seed(seed)
     if tiny:
         gcfg = GroundingDinoConfig(
@@ -401,6 +467,43 @@ def load_models(gdino: str | None = GDINO_ID, sam: str = SAM_ID, random_weights:
     return g, s
 
 
+def tokenizer_vocab(tokenizer: Any) -> list[str]:
+    """The tokens of a ``transformers`` tokenizer in id order, read from the tokenizer object itself
+    (``get_vocab()``: whatever files its folder had, ``vocab.txt`` or only ``tokenizer.json``).
+
+    Raises:
+        ModelFileError: the ids are not 0..N-1 without gaps (a vocab.txt needs one token per id).
+    """
+    by_id = sorted((int(i), str(t)) for t, i in tokenizer.get_vocab().items())
+    ids = [i for i, _ in by_id]
+    if ids != list(range(len(ids))):
+        gaps = sorted(set(range(max(ids) + 1)) - set(ids))[:5] if ids else []
+        raise ModelFileError(f"the tokenizer's vocabulary has ids that are not 0..{len(ids) - 1} without gaps "
+                             f"(missing e.g. {gaps}, or duplicates); give a BERT WordPiece tokenizer "
+                             "(bert-base-uncased's)")
+    return [t for _, t in by_id]
+
+
+def write_tokenizer_vocab(tokenizer: Any, path: Path) -> Path:
+    """Write ``tokenizer``'s vocabulary as ``vocab.txt`` (one token per line, line number = id) at ``path``."""
+    tokens = tokenizer_vocab(tokenizer)
+    bad = [t for t in tokens if "\n" in t or "\r" in t]
+    if bad:
+        raise ModelFileError(f"the tokenizer has token(s) with a line break ({bad[:3]!r}); they cannot be written "
+                             "one per line")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(tokens) + "\n", encoding="utf-8")
+    return path
+
+
+def vocab_card(path: Path) -> dict[str, Any]:
+    """The card fields that prove a vocabulary file: its name, line count, sha256 and the hard-coded special ids."""
+    from torm.segmentation.tokenizer import GROUNDING_SPECIAL_IDS
+
+    return {"vocab_file": path.name, "vocab_size": len(path.read_text(encoding="utf-8").splitlines()),
+            "vocab_sha256": sha256(path), "special_token_ids": dict(GROUNDING_SPECIAL_IDS)}
+
+
 def write_vocab(path: Path, size: int = 30522) -> Path:
     """A bert-base-uncased-shaped WordPiece vocabulary for random-weight checks (the ids Grounding DINO
     hard-codes: [PAD] 0, [UNK] 100, [CLS] 101, [SEP] 102, "." 1012, "?" 1029; real words for the default prompt).
@@ -408,11 +511,14 @@ def write_vocab(path: Path, size: int = 30522) -> Path:
     vocab = [f"[unused{i}]" for i in range(size)]
     vocab[0], vocab[100], vocab[101], vocab[102], vocab[103] = "[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]"
     vocab[1012], vocab[1029], vocab[1010] = ".", "?", ","
-    for i, w in enumerate(("clear", "glass", "transparent", "object", "cup", "bottle", "beaker", "##s")):
+    words = ("clear", "glass", "transparent", "object", "cup", "bottle", "beaker", "##s", "a", "an", "the", "plastic",
+             "of", "and", "jar", "vase", "bowl", "wine", "water", "container")
+    for i, w in enumerate(words):
         vocab[2000 + i] = w
     path.write_text("\n".join(vocab) + "\n")
     return path
 
 
-__all__ = ["GDINO_ID", "OPSET", "SAM2_ID", "SAM_ID", "SAM_KINDS", "ExportedModel", "export_grounding_dino",
-           "export_sam", "export_sam2", "load_models", "load_sam2", "sha256", "write_vocab"]
+__all__ = ["GDINO_ID", "MODEL_TYPES", "OPSET", "SAM2_ID", "SAM_ID", "SAM_KINDS", "ExportedModel",
+           "export_grounding_dino", "export_sam", "export_sam2", "load_models", "load_sam2", "provenance", "sha256",
+           "source_files_sha256", "tokenizer_vocab", "vocab_card", "write_tokenizer_vocab", "write_vocab"]

@@ -6,7 +6,8 @@ ONNX signatures (export recipes in ``torm/segmentation/README.md``):
 
 Grounding DINO (``gdino_model``)
     inputs  ``img`` (or ``samples``) (1, 3, H, W) float32, RGB/255 normalised with ImageNet mean/std,
-            resized so the short side is 800 px (longest <= 1333), or to the export's static size;
+            resized so the short side is 800 px (longest <= 1333), or, for an export with a static size,
+            letterboxed into it (aspect kept, padded right/bottom: :func:`gdino_letterbox`; never stretched);
             ``input_ids``, ``attention_mask``, ``position_ids``, ``token_type_ids`` (1, T);
             ``text_token_mask`` (or ``text_self_attention_masks``) (1, T, T) phrase-block mask.
             Integer/bool dtypes are taken from the model. T = the token count, or the export's static T.
@@ -37,9 +38,11 @@ SAM mask decoder (``sam_decoder``; segment-anything ``scripts/export_onnx_model.
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -50,7 +53,13 @@ from torm.segmentation.base import Detection, SegmentationResult, Segmenter, sco
 from torm.segmentation.boxes import DecodedBoxes, decode_grounding
 from torm.segmentation.onnx_models import BoundSession, TensorSpec, open_session, static_dims
 from torm.segmentation.postprocess import clean_mask, compose_instances
-from torm.segmentation.tokenizer import TextInputs, WordPieceTokenizer, grounding_text_inputs
+from torm.segmentation.tokenizer import (
+    GROUNDING_SPECIAL_IDS,
+    TextInputs,
+    WordPieceTokenizer,
+    check_vocabulary,
+    grounding_text_inputs,
+)
 from torm.types import Capture
 
 log = logging.getLogger(__name__)
@@ -169,6 +178,18 @@ class GroundedSAMConfig:
                 "grounded_sam: need max_detections > 0, max_text_len >= 3, min_blob_area_px >= 0, threads >= 0")
 
 
+def read_card(model_path: str | Path) -> dict[str, Any] | None:
+    """The model card ``<model_path>.json`` beside an exported ONNX file, or None when there is none."""
+    p = Path(str(model_path) + ".json")
+    if not p.is_file():
+        return None
+    try:
+        card = json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelFileError(f"model card {p} cannot be read ({exc}); re-export with `torm export-models`") from exc
+    return card if isinstance(card, dict) else None
+
+
 def gdino_resize_hw(h: int, w: int, short: int = 800, max_size: int = 1333) -> tuple[int, int]:
     """Grounding DINO's ``RandomResize([short], max_size)`` output (H, W) for an (h, w) image."""
     size = short
@@ -180,6 +201,31 @@ def gdino_resize_hw(h: int, w: int, short: int = 800, max_size: int = 1333) -> t
     if w < h:
         return int(size * h / w), size
     return size, int(size * w / h)
+
+
+def letterbox_hw(h: int, w: int, canvas_hw: tuple[int, int]) -> tuple[tuple[int, int], float]:
+    """The size (h', w') an (h, w) image takes inside a fixed ``canvas_hw`` keeping its aspect ratio (the largest
+    that fits; the rest is padding at the right and bottom), and the scale s = h'/h = w'/w (px per image px)."""
+    H, W = canvas_hw
+    s = min(H / h, W / w)
+    return (min(H, max(1, round(h * s))), min(W, max(1, round(w * s)))), float(s)
+
+
+def gdino_letterbox(rgb: np.ndarray, canvas_hw: tuple[int, int]) -> tuple[np.ndarray, tuple[float, float]]:
+    """(H, W, 3) uint8 RGB -> ((1, 3, Hc, Wc) float32 normalised input, canvas (W, H) in original-image pixels).
+
+    For an export with a static input size: the image keeps its aspect ratio (resized into the canvas, padded at
+    the right and bottom with the ImageNet mean, i.e. 0 after normalisation) instead of being stretched. The
+    official processor also masks the padding in attention; a static export has no mask input, so the padding is
+    mean grey the model sees. Boxes normalised to the canvas map back with the returned canvas size
+    (``decode_grounding(..., canvas_wh=...)``)."""
+    h, w = rgb.shape[:2]
+    (rh, rw), s = letterbox_hw(h, w, canvas_hw)
+    x = gdino_preprocess(rgb, (rh, rw))
+    Hc, Wc = canvas_hw
+    out = np.zeros((1, 3, Hc, Wc), np.float32)
+    out[:, :, :rh, :rw] = x
+    return out, (Wc / s, Hc / s)
 
 
 def _resize(rgb: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
@@ -281,6 +327,14 @@ class GroundedSAMSegmenter(Segmenter):
         self.tokenizer = WordPieceTokenizer.from_file(c.bert_vocab)
         self.gdino: BoundSession | None = open_session(c.gdino_model, "grounded_sam.gdino_model", GDINO_INPUTS,
                                                        GDINO_OUTPUTS, providers, c.threads)
+        #: the export's model card (``<gdino_model>.json``, written by ``torm export-models``), or None
+        self.gdino_card = read_card(c.gdino_model)
+        if self.gdino_card is None:
+            log.warning("%s has no model card (%s.json): the vocabulary %s cannot be checked against the export; "
+                        "use files written by `torm export-models`", c.gdino_model, c.gdino_model, c.bert_vocab)
+        else:
+            check_vocabulary(self.tokenizer, self.gdino_card,
+                             self.gdino_card.get("special_token_ids") or GROUNDING_SPECIAL_IDS)
         ids_dims = static_dims(self.gdino, "input_ids")
         self._text_len = ids_dims[1]
         img_dims = static_dims(self.gdino, "img")
@@ -304,7 +358,11 @@ class GroundedSAMSegmenter(Segmenter):
                                 np.array([d.score for d in dets], float), tuple(d.label for d in dets))
         c, t = self.config, self.text
         h, w = rgb.shape[:2]
-        img = gdino_preprocess(rgb, self.gdino_input_hw(h, w))
+        canvas = None
+        if self._gdino_static_hw is not None:  # a fixed-size export: letterboxed, never stretched
+            img, canvas = gdino_letterbox(rgb, self._gdino_static_hw)
+        else:
+            img = gdino_preprocess(rgb, self.gdino_input_hw(h, w))
         logits, boxes = self.gdino.run(
             {"img": img, "input_ids": t.input_ids, "attention_mask": t.attention_mask, "position_ids": t.position_ids,
              "token_type_ids": t.token_type_ids, "text_token_mask": t.self_attention_mask},
@@ -313,7 +371,7 @@ class GroundedSAMSegmenter(Segmenter):
         return decode_grounding(
             logits[0], boxes[0], t, self.tokenizer, (w, h), c.box_threshold, c.text_threshold, c.nms_iou,
             logits_are_probabilities=c.logits_are_probabilities, max_box_fraction=c.max_box_fraction,
-            min_box_px=c.min_box_px, max_detections=c.max_detections,
+            min_box_px=c.min_box_px, max_detections=c.max_detections, canvas_wh=canvas,
         )
 
     def embed(self, rgb: np.ndarray) -> dict[str, np.ndarray]:

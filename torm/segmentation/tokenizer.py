@@ -7,18 +7,29 @@ phrase-level self-attention mask and position ids of the official
 ``generate_masks_with_special_tokens_and_transfer_map`` (GroundingDINO ``bertwarper.py``): tokens attend only
 within their phrase, phrases are delimited by ``[CLS]``, ``[SEP]``, ``.`` and ``?``, and position ids restart at 0
 after every delimiter.
+
+A prompt is never cut: one whose token count (``[CLS]`` and ``[SEP]`` included) exceeds the export's static token
+count, or ``max_text_len``, is a :class:`~torm.errors.ConfigError` stating both numbers. :func:`check_vocabulary`
+proves a vocabulary file at load time: its size and sha256 against the model card the export wrote, and the
+special-token ids Grounding DINO's weights hard-code (:data:`GROUNDING_SPECIAL_IDS`).
 """
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from torm.errors import ModelFileError
+from torm.errors import ConfigError, ModelFileError
 
 _SPECIALS = ("[PAD]", "[UNK]", "[CLS]", "[SEP]")
+#: token -> id that Grounding DINO's text encoder (bert-base-uncased) and its phrase masks hard-code: padding, the
+#: framing tokens and the phrase delimiter (``generate_masks_with_special_tokens_and_transfer_map``)
+GROUNDING_SPECIAL_IDS: dict[str, int] = {"[PAD]": 0, "[CLS]": 101, "[SEP]": 102, ".": 1012}
 
 
 class WordPieceTokenizer:
@@ -32,6 +43,9 @@ class WordPieceTokenizer:
         from tokenizers import BertWordPieceTokenizer
 
         self.vocab = vocab
+        #: the file the vocabulary was read from (None when built from a dict) and its number of lines (= ids)
+        self.path: Path | None = None
+        self.n_lines = max(vocab.values()) + 1
         self.inv_vocab = {i: t for t, i in vocab.items()}
         self.lowercase = lowercase
         self.max_chars_per_word = max_chars_per_word
@@ -51,9 +65,11 @@ class WordPieceTokenizer:
         for i, t in enumerate(tokens):
             vocab.setdefault(t.rstrip("\n"), i)
         try:
-            return cls(vocab, lowercase=lowercase)
+            out = cls(vocab, lowercase=lowercase)
         except ModelFileError as exc:
             raise ModelFileError(f"{p}: {exc}") from exc
+        out.path, out.n_lines = p, len(tokens)
+        return out
 
     def token_id(self, token: str) -> int:
         return self.vocab.get(token, self.vocab["[UNK]"])
@@ -79,6 +95,38 @@ class WordPieceTokenizer:
             else:
                 out += (" " if out else "") + tok
         return out
+
+
+def vocab_sha256(path: str | Path) -> str:
+    """sha256 (hex) of a vocabulary file's bytes."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def check_vocabulary(tokenizer: WordPieceTokenizer, card: Mapping[str, Any] | None = None,
+                     expected_ids: Mapping[str, int] = GROUNDING_SPECIAL_IDS) -> None:
+    """Prove that ``tokenizer``'s vocabulary is the one the model was exported with.
+
+    ``card``: the Grounding DINO export's model card (``vocab_size`` lines, ``vocab_sha256``); None or a card
+    without them (an ONNX file exported elsewhere) skips that part. ``expected_ids``: token -> id the weights
+    hard-code. Raises :class:`ModelFileError` naming the file, what differs and the fix.
+    """
+    where = tokenizer.path or "the BERT vocabulary"
+    if card and card.get("vocab_size") is not None and tokenizer.n_lines != int(card["vocab_size"]):
+        raise ModelFileError(f"{where} has {tokenizer.n_lines} lines but the Grounding DINO export was made with a "
+                             f"{card['vocab_size']}-line vocabulary (its card); a dropped or added line shifts every "
+                             "id: use the vocab.txt `torm export-models` wrote beside the model")
+    if card and card.get("vocab_sha256") and tokenizer.path is not None:
+        digest = vocab_sha256(tokenizer.path)
+        if digest != card["vocab_sha256"]:
+            raise ModelFileError(f"{where} has sha256 {digest[:12]}... but the Grounding DINO export was made with "
+                                 f"{card['vocab_sha256'][:12]}... (its card): another vocabulary; use the vocab.txt "
+                                 "`torm export-models` wrote beside the model")
+    wrong = {t: tokenizer.vocab.get(t) for t, i in expected_ids.items() if tokenizer.vocab.get(t) != i}
+    if wrong:
+        got = ", ".join(f"{t!r} is {'missing' if i is None else f'id {i}'} (expected {expected_ids[t]})"
+                        for t, i in wrong.items())
+        raise ModelFileError(f"{where}: {got}; Grounding DINO's weights hard-code these ids: use bert-base-uncased's "
+                             "vocab.txt (30522 lines), e.g. the one `torm export-models` writes")
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,13 +165,23 @@ def grounding_text_inputs(
     """Tokenise ``prompt`` (phrases separated by ``.``) into Grounding DINO inputs.
 
     ``pad_to`` pads with ``[PAD]`` to a fixed length (for exports with a static sequence length);
-    otherwise the length is the token count (``padding="longest"`` for one caption), capped at
-    ``max_text_len``.
+    otherwise the length is the token count (``padding="longest"`` for one caption).
+
+    Raises:
+        ConfigError: the caption has more tokens (``[CLS]``/``[SEP]`` included) than ``pad_to`` or
+            ``max_text_len``; it is never cut, the message states the count and the maximum.
     """
     caption = normalize_caption(prompt)
     limit = min(max_text_len, pad_to) if pad_to else max_text_len
-    ids = tokenizer.encode(caption, max_length=limit)
+    ids = tokenizer.encode(caption)
     n = len(ids)
+    if n > limit:
+        fix = (f"shorten it or re-export with `torm export-models --max-tokens {n}` (or more)"
+               if pad_to and pad_to <= max_text_len else f"shorten it or raise grounded_sam.max_text_len to {n}")
+        which = "the Grounding DINO export's static token count" if pad_to and pad_to <= max_text_len \
+            else "max_text_len"
+        raise ConfigError(f"prompt {caption!r} has {n} tokens ([CLS] and [SEP] included) but {which} is {limit}; "
+                          f"it is not cut: {fix}")
     T = pad_to if pad_to else n
     input_ids = np.full((1, T), tokenizer.vocab["[PAD]"], dtype=np.int64)
     input_ids[0, :n] = ids
