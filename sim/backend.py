@@ -271,6 +271,11 @@ class SimGripper:
         self.max_width: float = float(g.geometry.max_opening)
         #: (low, high) pad force a command is clipped to (N).
         self.force_range_n: tuple[float, float] = tuple(float(v) for v in sim.config.gripper_force_range)
+        fmap = g.force_map
+        #: (widths (m), most pad force there (N)) measured in the force map (``max_force``), or None: what a
+        #: position servo or a linkage can squeeze at all, whatever the request.
+        self.max_pad_force: tuple[tuple[float, ...], tuple[float, ...]] | None = (
+            (tuple(fmap.widths), tuple(fmap.max_force)) if fmap is not None and fmap.max_force is not None else None)
         cmds = np.array([c for c, _ in g.command_to_width])
         widths = np.array([w for _, w in g.command_to_width])
         self._m_per_cmd = float(abs(widths[0] - widths[-1]) / (cmds[-1] - cmds[0]))  # mean gap change per command

@@ -58,7 +58,11 @@ class ForceMap:
         if self.max_force is not None and (len(self.max_force) != len(w) or min(self.max_force) <= 0):
             raise ConfigError(f"gripper.force_map.max_force needs {len(w)} positive values (N), one per width")
         drop = np.maximum.accumulate(f, axis=1) - f
-        if np.any(f < 0) or np.any(drop > 0.01 * np.maximum(f, 1.0)) or np.any(f[:, 1] <= f[:, 0]):
+        # a row may be flat from its first setting only where that is already the most the gripper squeezes there
+        # (a position servo on a narrow block: its max_force); every other row must rise at first
+        saturated = (np.asarray(self.max_force, float) * 0.99 <= f[:, 0] if self.max_force is not None
+                     else np.zeros(len(w), bool))
+        if np.any(f < 0) or np.any(drop > 0.01 * np.maximum(f, 1.0)) or np.any((f[:, 1] <= f[:, 0]) & ~saturated):
             raise ConfigError("gripper.force_map.pad_force must be >= 0 and grow with the setting in every row "
                               "(rising from the first to the second setting); re-measure with "
                               "python -m sim.robots.measure_gripper ROBOT --force")

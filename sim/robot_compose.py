@@ -17,7 +17,8 @@ models and the plan-time collision checker alike, so the robot is the same every
   robot would change every capture;
 * the arm joints' ranges are set to ``arm.position_limits`` (which must lie inside the MJCF's ranges), so the
   IK, the simulated joints and the safety layer share one set of limits;
-* ``gripper.define_tcp`` adds the TCP site a gripper file lacks (named ``arm.tcp_site``).
+* ``gripper.define_tcp`` adds the TCP site a gripper file lacks (named ``arm.tcp_site``);
+* ``gripper.servo_gain_scale`` scales the gripper's position-servo gains (:func:`scale_servo_gains`).
 
 Units: m, rad; quaternions wxyz.
 """
@@ -207,6 +208,31 @@ def add_tcp_site(spec: mujoco.MjSpec, rcfg: RobotConfig) -> None:
                   size=[0.005, 0.005, 0.005], group=4)
 
 
+def scale_servo_gains(spec: mujoco.MjSpec, rcfg: RobotConfig) -> None:
+    """Multiply the gripper actuator's servo gains by ``gripper.servo_gain_scale`` s: ``gainprm[0]``, ``biasprm[0]``
+    and ``biasprm[1]`` (the stiffness) by s, ``biasprm[2]`` (the damping) by sqrt(s), which keeps the damping ratio.
+    The actuator is the one :meth:`RobotConfig.resolve` finds; ConfigError when it is not a position servo."""
+    scale = float(rcfg.gripper.servo_gain_scale)
+    if scale == 1.0:
+        return
+    from sim.robot_ids import _label, position_servo
+    from torm.errors import ConfigError
+
+    model = compile_spec(spec, f"robot {rcfg.name!r}")
+    a = rcfg.resolve(model).gripper_actuator
+    if not position_servo(model, a):
+        raise ConfigError(f"robot {rcfg.name!r}: gripper.servo_gain_scale={scale:g} needs a position-servo gripper "
+                          f"actuator (biastype affine with negative length feedback); {_label(model, a)} is not one: "
+                          "remove servo_gain_scale")
+    act = spec.actuators[a]
+    gain, bias = list(act.gainprm), list(act.biasprm)
+    gain[0] *= scale
+    bias[0] *= scale
+    bias[1] *= scale
+    bias[2] *= float(np.sqrt(scale))
+    act.gainprm, act.biasprm = gain, bias
+
+
 def robot_spec(rcfg: RobotConfig) -> mujoco.MjSpec:
     """A fresh MjSpec of the robot alone: composed, keyframes and lights dropped, the arm's joint limits and a
     declared TCP site applied, gravcomp applied, base at ``base_pose``."""
@@ -218,6 +244,7 @@ def robot_spec(rcfg: RobotConfig) -> mujoco.MjSpec:
     strip_lights(spec, f"robot {rcfg.name!r}")
     apply_joint_limits(spec, rcfg)
     add_tcp_site(spec, rcfg)
+    scale_servo_gains(spec, rcfg)
     if rcfg.gravcomp is not None:
         set_gravcomp(spec, rcfg.gravcomp)
     if not rcfg.base_pose.is_identity:

@@ -276,6 +276,11 @@ class GripperConfig:
             actuator force limit is taken as the pad force, allowed only for a direct drive (the actuator moves
             slide joints, directly or through a tendon); a linkage (hinge) gripper without one is refused.
         define_tcp: a TCP site to add (named ``arm.tcp_site``) when the gripper file has none.
+        servo_gain_scale: multiplies the gripper actuator's position-servo gains when the robot is composed
+            (gain and the bias's constant and stiffness terms by it, the damping by its square root: the same
+            damping ratio), for a hand whose MJCF servo squeezes far less than the real hand (MuJoCo Menagerie's
+            Panda hand: about 25 N/m x gap per finger); 1 = as authored. Only for a position-servo actuator
+            (``biastype="affine"`` with negative length feedback); re-measure ``force_map`` after changing it.
     """
 
     joints: tuple[str, ...]
@@ -292,8 +297,12 @@ class GripperConfig:
     force: float | None = None
     force_map: ForceMap | None = None
     define_tcp: TcpSiteDeclaration | None = None
+    servo_gain_scale: float = 1.0
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.servo_gain_scale <= 1e4:
+            raise ConfigError(f"gripper.servo_gain_scale must be in (0, 10000], got {self.servo_gain_scale} "
+                              "(1 = the MJCF's own gains)")
         pads = self.pad_geoms
         if len(pads) != 2:
             raise ConfigError("gripper.pad_geoms must be [left, right] or [[left pads...], [right pads...]]")

@@ -146,11 +146,45 @@ def problems_in(model: mujoco.MjModel, rcfg: RobotConfig) -> list[str]:
     return _resolve(model, rcfg)[1]
 
 
+def position_servo(model: mujoco.MjModel, actuator: int) -> bool:
+    """Whether ``actuator`` is a position servo: an affine bias with negative length feedback (force = gain x ctrl +
+    b0 - kp x length - kv x velocity, MuJoCo's ``<position>`` or Menagerie's ``<general biastype="affine">``), so
+    the force it presses with is kp x the position error, up to its force limit, not the limit itself."""
+    return (int(model.actuator_biastype[actuator]) == int(mujoco.mjtBias.mjBIAS_AFFINE)
+            and float(model.actuator_biasprm[actuator, 1]) < 0.0)
+
+
+def servo_pull_n(model: mujoco.MjModel, actuator: int, finger_joints: tuple[int, ...], closed_command: float) -> float:
+    """Force (actuator units, N for a slide or tendon drive) the position servo ``actuator`` pulls with when
+    commanded closed while its fingers stand half-way (each finger joint at the middle of its range): the static
+    part of MuJoCo's affine actuator force, gain x ctrl + b0 + b1 x length (velocity 0), before the force limit."""
+    d = mujoco.MjData(model)
+    for j in finger_joints:
+        if model.jnt_limited[j]:
+            d.qpos[model.jnt_qposadr[j]] = float(np.mean(model.jnt_range[j]))
+    mujoco.mj_fwdPosition(model, d)
+    g, b = model.actuator_gainprm[actuator], model.actuator_biasprm[actuator]
+    return abs(float(g[0]) * float(closed_command) + float(b[0]) + float(b[1]) * float(d.actuator_length[actuator]))
+
+
 def force_map_problem(model: mujoco.MjModel, rcfg: RobotConfig, ids: RobotIds) -> str | None:
-    """Why ``rcfg`` needs a ``gripper.force_map`` it lacks (its actuator is not a direct drive), or None."""
+    """Why ``rcfg`` needs a ``gripper.force_map`` it lacks (its actuator is a linkage, or a position servo on slide
+    fingers whose force limit is not what the pads press with), or None."""
     a = ids.gripper_actuator
-    if rcfg.gripper.force_map is not None or a < 0 or direct_drive(model, a):
+    if rcfg.gripper.force_map is not None or a < 0:
         return None
+    if direct_drive(model, a):
+        if not position_servo(model, a):
+            return None
+        pull = servo_pull_n(model, a, ids.gripper_joints, rcfg.gripper.closed_command)
+        limit = float(model.actuator_forcerange[a, 1]) if model.actuator_forcelimited[a] else float("inf")
+        if pull >= limit:
+            return None  # the servo pulls harder than its limit even half-way closed: the limit is what it presses
+        return (f"robot {rcfg.name!r}: gripper actuator {_label(model, a)} is a position servo that pulls only "
+                f"{pull:.3g} N half-way closed (force = {-float(model.actuator_biasprm[a, 1]):g} x position error; "
+                f"its force limit {limit:g} never binds), so its pads press far less than a grip asks; measure what "
+                f"it squeezes with python -m sim.robots.measure_gripper {rcfg.name} --force and paste it into "
+                "gripper.force_map (max_force: the most per width), or raise its gain with gripper.servo_gain_scale")
     return (f"robot {rcfg.name!r}: gripper actuator {_label(model, a)} drives a hinge (a linkage), so its force limit "
             "is not the pad force and a grip would be recorded with the wrong force; measure a force map with "
             f"python -m sim.robots.measure_gripper {rcfg.name} --force (the robot's folder name or the path of its "

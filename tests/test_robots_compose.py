@@ -53,7 +53,7 @@ GRIPPER = """<mujoco model="tiny_gripper">
     </body>
   </worldbody>
   <equality><joint joint1="f2" joint2="f"/></equality>
-  <actuator><position joint="f" kp="100" ctrlrange="0 0.03"/></actuator>
+  <actuator><position joint="f" kp="5000" forcerange="-20 20" ctrlrange="0 0.03"/></actuator>
 </mujoco>"""
 GEOMETRY = {"approach_axis": "z", "closing_axis": "y", "pad_size": [0.02, 0.006, 0.02],
             "finger_size": [0.02, 0.006, 0.04], "finger_center_approach": -0.01, "palm_size": [0.04, 0.08, 0.04],

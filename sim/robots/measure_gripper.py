@@ -193,17 +193,35 @@ def default_widths(cfg: RobotConfig, n: int = 8) -> list[float]:
 
 
 def default_settings(cfg: RobotConfig) -> list[float]:
-    """Settings expected to give :data:`TARGET_FORCES`, from one probe at the MJCF's own force limit."""
-    rig = Rig.build(cfg)
+    """Settings expected to give :data:`TARGET_FORCES`, from probes on a block of half the stroke.
+
+    The pad force per unit setting is read where the force limit binds. A position-servo gripper (force = gain x
+    position error, e.g. Menagerie's Panda hand) may squeeze less than its MJCF force limit ever allows: then the
+    probe is lowered until the limit binds, and the targets are the ones below the most it squeezes (its
+    ``max_force`` at half the stroke or at 90 % of it, whichever is more), or fractions of that most when it
+    squeezes less than the smallest target; rows of narrower blocks then level off below them."""
+    w = 0.5 * cfg.gripper.geometry.max_opening
+    rig = Rig.build(cfg, w)
+    cap = squeeze(cfg, w, None, rig)
+    if not cap > 0:
+        raise SystemExit(f"the gripper produced no pad force on a {w * 1e3:.0f} mm block; check the pad geoms, the "
+                         "command direction and the actuator")
     probe = float(rig.model.actuator_forcerange[rig.ids.gripper_actuator][1])
     if not probe > 0:
         probe = 100.0
-    w = 0.5 * cfg.gripper.geometry.max_opening
-    ratio = squeeze(cfg, w, probe) / probe
-    if not ratio > 0:
-        raise SystemExit(f"the gripper produced no pad force on a {w * 1e3:.0f} mm block at setting {probe}; "
-                         "check the pad geoms, the command direction and the actuator")
-    return [float(f"{f / ratio:.4g}") for f in TARGET_FORCES]
+    force = squeeze(cfg, w, probe, rig)
+    for _ in range(16):  # the servo, not the limit, decided: lower the limit until it binds
+        if force < 0.9 * cap:
+            break
+        probe /= 4.0
+        force = squeeze(cfg, w, probe, rig)
+    ratio = force / probe
+    wide = 0.9 * cfg.gripper.geometry.max_opening  # a servo squeezes most where its fingers stop widest
+    cap = max(cap, squeeze(cfg, wide, None, Rig.build(cfg, wide)))
+    targets = [f for f in TARGET_FORCES if f < 0.9 * cap]
+    if len(targets) < 4:
+        targets = sorted({*targets, *(round(cap * x, 4) for x in (0.1, 0.25, 0.5, 0.75))})
+    return sorted({float(f"{f / ratio:.4g}") for f in targets})
 
 
 def measure_force_map(cfg: RobotConfig, widths: Sequence[float] | None = None,

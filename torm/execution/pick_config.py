@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Annotated
 
 from torm.config import Range, check_finite
 from torm.errors import ConfigError
 from torm.execution.ik import IKConfig
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -106,9 +109,26 @@ def check_grip_force(force_n: float, gripper: object, key: str = "pick.grip_forc
         ConfigError: naming ``key``, the value, the range and the fix.
     """
     rng = getattr(gripper, "force_range_n", None)
-    if rng is None:
+    if rng is not None:
+        lo, hi = (float(v) for v in rng)
+        if not lo <= float(force_n) <= hi:
+            raise ConfigError(f"{key}={force_n:g} N is outside the gripper's pad force range {lo:g}-{hi:g} N (it would "
+                              f"be commanded as {min(max(float(force_n), lo), hi):g} N); set {key} inside "
+                              f"{lo:g}-{hi:g}")
+    most = getattr(gripper, "max_pad_force", None)
+    if most is None:
         return
-    lo, hi = (float(v) for v in rng)
-    if not lo <= float(force_n) <= hi:
-        raise ConfigError(f"{key}={force_n:g} N is outside the gripper's pad force range {lo:g}-{hi:g} N (it would be "
-                          f"commanded as {min(max(float(force_n), lo), hi):g} N); set {key} inside {lo:g}-{hi:g}")
+    widths, forces = (tuple(float(v) for v in x) for x in most)
+    peak = max(forces)
+    if float(force_n) > peak:
+        w_peak = widths[forces.index(peak)]
+        raise ConfigError(
+            f"{key}={force_n:g} N is more than this gripper squeezes at any opening: at most {peak:.3g} N (at "
+            f"{w_peak * 1e3:.0f} mm; {min(forces):.3g} N at {widths[0] * 1e3:.0f} mm), measured in its "
+            f"gripper.force_map.max_force (a position servo presses with stiffness x remaining travel); set {key} "
+            f"to at most {peak:.3g}, or raise gripper.servo_gain_scale in the robot's YAML and re-measure the map "
+            "(python -m sim.robots.measure_gripper ROBOT --force)")
+    short = [w for w, f in zip(widths, forces, strict=True) if f < float(force_n)]
+    if short:
+        log.info("%s=%g N: the gripper squeezes less below a %.0f mm opening (%.3g N at %.0f mm); grips there "
+                 "record the force they reach", key, force_n, max(short) * 1e3, min(forces), widths[0] * 1e3)
