@@ -190,6 +190,13 @@ class TrialJudge(PickJudge):
         self.initial_meshes = self.gt.object_meshes()  # the true surfaces before anything moved (metrics)
         self.matches: dict[int, int] = {}  # reconstruction label -> real id
         self.matching: list[dict[str, Any]] = []
+        #: every full capture the cameras made, ground truth included, in order (the loop got them without it)
+        self.captures: list[Any] = []
+
+    def saw(self, capture: Any) -> None:
+        """Keep a full capture (masks, ideal depth, object ids) the loop received without its ground truth
+        (:class:`torm.backend.blind.LoopBackend`'s ``truth_sink``), for scoring after the fact."""
+        self.captures.append(capture)
 
     def perceived(self, point_clouds: list[ObjectPointCloud]) -> None:
         """Match the reconstructions (labels ``object_index``) to the real objects as they stand now."""

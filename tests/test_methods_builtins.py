@@ -127,7 +127,7 @@ def test_a_builtin_run_as_a_module_callable_plugin_sees_the_same_depth_as_the_bu
     them, so its points are a subset of the built-in's)."""
     from torm import config
     from torm.backend.blind import LoopBackend
-    from torm.loop import perceive
+    from torm.loop import grants_masks, perceive
     from torm.pipeline import TrialConfig, make_backend
 
     clouds = {}
@@ -136,7 +136,8 @@ def test_a_builtin_run_as_a_module_callable_plugin_sees_the_same_depth_as_the_bu
             "capture.n_views=6", "capture.scale=0.25", "capture.depth_model=statistical"])
         backend = make_backend(cfg)
         try:
-            per = perceive(cfg, LoopBackend(backend), np.random.default_rng(3), {})
+            assert grants_masks(cfg)  # the depth baseline cuts with the capture's masks: declared
+            per = perceive(cfg, LoopBackend(backend, grant_masks=True), np.random.default_rng(3), {})
         finally:
             backend.close()
         assert per.info["capture_info"]["views_captured"] == 1

@@ -116,6 +116,29 @@ def _load_reference(folder: str, stamp: int) -> Capture:
     return load_capture(folder)
 
 
+#: Built-in methods defined on the simulator's instance masks (declared simulation-only; the loop is granted them).
+MASK_METHODS = ("oracle", "depth", "depth_fusion")
+#: Segmenters of ``torm`` that read the simulator's masks (ground truth and its error model).
+MASK_SEGMENTERS = ("gt", "noisy")
+
+
+def grants_masks(config: TrialConfig) -> bool:
+    """Whether the trial's method is declared to read the simulator's masks and ideal depth (``oracle``, the depth
+    baselines that cut with the capture's masks, ``torm`` with the ``gt`` or ``noisy`` segmenter, a plug-in that
+    asks for the ``mask`` channel); every other loop gets captures without ground truth
+    (:func:`torm.backend.blind.without_ground_truth`)."""
+    if config.method in MASK_METHODS:
+        return True
+    if config.method == "torm":
+        return config.segmentation.segmenter in MASK_SEGMENTERS
+    from torm.methods import is_builtin, load_method
+
+    if is_builtin(config.method):
+        return False
+    needs = getattr(load_method(config.method, dict(config.method_options)), "needs", None)
+    return needs is not None and "mask" in needs.channels()
+
+
 def _capture(config: TrialConfig, backend: Any, rgb: bool = False, plugin: Any = None
              ) -> tuple[Capture, dict[str, Any]]:
     """The capture ``config.method`` needs, and what was captured (views, channels, layout indices).
@@ -359,7 +382,7 @@ def run_loop(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
     except ReconstructionError as exc:
         record["failure"], record["message"] = "reconstruction_failed", str(exc)
         return []
-    record["perception"] = {k: v for k, v in per.info.items() if k != "capture"}
+    record["perception"] = {k: v for k, v in per.info.items() if k not in ("capture", "masks_vxhxw")}
     record["table"] = per.info["table"]
     record["n_perceptions"] = 1
     record["perceptions"] = [per]  # the harness scores them and drops this key

@@ -205,7 +205,8 @@ def perceive_torm(capture: Capture, segmenter: Any, recon_config: Any) -> Percep
     t0 = time.perf_counter()
     seg = segmenter.segment(capture)
     info["segmentation_s"] = time.perf_counter() - t0
-    info["mask_quality"] = seg.info.get("quality")
+    info["mask_quality"] = seg.info.get("quality")  # None when the loop's capture has no masks (the judge scores)
+    info["masks_vxhxw"] = seg.masks_vxhxw  # for the judge's score after the trial; never written to a record
     seg_capture = seg.apply(capture)
     rec = reconstruct(seg_capture, recon_config)
     clouds = [ObjectPointCloud(c.points_nx3, c.normals_nx3, 1000 + k) for k, c in enumerate(rec.point_clouds)]

@@ -463,8 +463,13 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
             judge = TrialJudge(backend, config.success, config.pick)
         oracle = judge.gt.object_meshes if (judge is not None and config.method == "oracle") else None
         watcher = ObserverGroup(judge, recorder) if recorder is not None else judge  # the recording logs the phases
-        attempts = run_loop(config, LoopBackend(backend), rng, timings, result, observer=watcher,
-                            oracle_meshes=oracle, recorder=recorder)
+        from torm.loop import grants_masks
+
+        granted = grants_masks(config)
+        result["context"]["ground_truth_in_loop"] = "masks and ideal depth (declared)" if granted else "none"
+        loop_backend = LoopBackend(backend, grant_masks=granted, truth_sink=judge.saw if judge is not None else None)
+        attempts = run_loop(config, loop_backend, rng, timings, result, observer=watcher, oracle_meshes=oracle,
+                            recorder=recorder)
         perceptions = result.pop("perceptions", [])
         if judge is not None:
             _score(judge, backend, attempts, perceptions, result, timings)
@@ -502,11 +507,21 @@ def _score(judge: Any, backend: Any, attempts: list[dict[str, Any]], perceptions
            result: dict[str, Any], timings: dict[str, float]) -> None:
     """The judge's part of the record: rows per real object and per attempt, perception metrics, OCC."""
     first = perceptions[0] if perceptions else None
+    truth = judge.captures[0] if getattr(judge, "captures", None) else None  # the full first capture
     if first is not None:
         result["perception"] = _perception_metrics(first, judge, result.get("perception", {}))
-        if hasattr(backend, "occlusion_ratio") and first.info["capture"].has_masks:
+        masks = first.info.get("masks_vxhxw")
+        if result["perception"].get("mask_quality") is None and masks is not None and truth is not None \
+                and truth.has_masks and tuple(masks.shape[1:]) == truth.image_size and len(masks) == len(truth):
+            from torm.segmentation.base import mask_reference
+            from torm.segmentation.quality import mask_quality
+
+            result["perception"]["mask_quality"] = mask_quality(masks, truth.masks())  # the judge's score
+            result["perception"]["mask_quality_reference"] = mask_reference(truth)
+        seen = truth if truth is not None else first.info["capture"]
+        if hasattr(backend, "occlusion_ratio") and seen.has_masks:
             t = time.perf_counter()
-            result["occ"] = backend.occlusion_ratio(first.info["capture"])
+            result["occ"] = backend.occlusion_ratio(seen)
             timings["occlusion_metric"] = time.perf_counter() - t
 
     def reason(i: int) -> str:

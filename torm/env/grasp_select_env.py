@@ -307,7 +307,10 @@ class TormGraspSelectEnv(gym.Env):
         self._close_world()
         self._trial = trial = cfg.trial_config(scenario, layout)
         backend = make_backend(trial)
-        self._backend, self._loop, self._key = backend, LoopBackend(backend), (scenario, int(layout))
+        from torm.loop import grants_masks
+
+        loop = LoopBackend(backend, grant_masks=grants_masks(trial))  # captures without ground truth unless declared
+        self._backend, self._loop, self._key = backend, loop, (scenario, int(layout))
         self._perceived = None
         self._pick = trial.pick
         realism = getattr(backend, "realism", None)

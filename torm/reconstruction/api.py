@@ -612,7 +612,9 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
     table_z = resolve_table(capture, config)
     timings["validate"] = time.perf_counter() - t
     t = time.perf_counter()
-    bounds, bounds_src = resolve_bounds(capture, config, sil, Ks, poses, table_z, vote)
+    # the automatic box closes the silhouette cones around what the masks show: no-evidence pixels (the border an
+    # undistortion leaves) are not object there, or every cone would touch the image border
+    bounds, bounds_src = resolve_bounds(capture, config, inst > 0, Ks, poses, table_z, vote)
     timings["bounds"] = time.perf_counter() - t
     info: dict = {"mode": config.mode, "mode_label": mode_label(config), "threads": threads,
                   "bounds": bounds.tolist(), "bounds_source": bounds_src, "table_z": table_z, "n_views": V,
