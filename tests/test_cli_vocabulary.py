@@ -31,6 +31,9 @@ def test_options_yaml_sets_a_commands_options_and_the_command_line_wins(tmp_path
     argv = ["bench", "--out", str(tmp_path / "run"), "--config", str(cfg), "--workers", "1"]
     args = apply_options_config(parser, argv, parser.parse_args(argv))
     assert (args.trials, args.method, args.workers, args.overrides) == (3, ["oracle"], 1, ["capture.n_views=3"])
+    parser = build_parser()  # a list given on the command line replaces the file's list (not appended to it)
+    argv = ["bench", "--out", str(tmp_path / "run"), "--config", str(cfg), "--method", "depth"]
+    assert apply_options_config(parser, argv, parser.parse_args(argv)).method == ["depth"]
     parser = build_parser()
     argv = ["report", str(tmp_path), "--set", "out=somewhere"]
     assert apply_options_config(parser, argv, parser.parse_args(argv)).out == "somewhere"

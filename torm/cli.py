@@ -94,7 +94,11 @@ def apply_options_config(parser: argparse.ArgumentParser, argv: list[str] | None
     if unknown:
         valid = sorted({k for k in keys if "_" not in k or k == keys[k]})
         raise ConfigError(f"{path or '--set'}: unknown option(s) {unknown}; valid: {', '.join(valid)}")
-    leaf.set_defaults(**{keys[k]: v for k, v in data.items()})
+    # a list option (--method a --method b) given on the command line replaces the file's list, not extends it
+    words = list(sys.argv[1:] if argv is None else argv)
+    given = {a.dest for a in leaf._actions if isinstance(a, argparse._AppendAction)
+             and any(w == o or w.startswith(o + "=") for o in a.option_strings for w in words)}
+    leaf.set_defaults(**{keys[k]: v for k, v in data.items() if keys[k] not in given})
     return parser.parse_args(argv)
 
 
