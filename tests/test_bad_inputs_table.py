@@ -179,6 +179,10 @@ CLI_CASES: list[tuple[list[str], str]] = [
       "{run}/h", "--square", "nan"], "--square"),
     (["calibrate", "hand-eye", "--images", "{run}", "--poses", "{file}", "--intrinsics", "{file}", "--out",
       "{run}/h", "--marker", "-0.02"], "--marker"),
+    (["calibrate", "hand-eye", "--images", "{run}", "--poses", "{file}", "--intrinsics", "{file}", "--out",
+      "{file}/he.yaml"], "--out"),
+    (["train-segmenter", "--out", "{file}/seg.onnx", "--set", "train.steps=1"], "--out"),
+    (["train-segmenter", "--work", "{file}/w", "--set", "train.steps=1"], "--out"),
     (["import", "colmap", "{run}", "--out", "{run}/i", "--scale", "nan"], "--scale"),
     (["import", "colmap", "{run}", "--out", "{run}/i", "--scale", "0"], "--scale"),
 ]

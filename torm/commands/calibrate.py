@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 
-from torm.commands._common import add_parser, add_robot, positive_float, print_json
+from torm.commands._common import add_parser, add_robot, check_output_file, positive_float, print_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -71,6 +71,7 @@ def run_hand_eye(args: argparse.Namespace) -> int:
         save_hand_eye,
     )
 
+    check_output_file(args.out)  # before any image is read
     spec = CharucoSpec.parse(args.board, args.square, args.marker, args.dictionary)
     K, dist = load_intrinsics(args.intrinsics)
     cache: dict = {}

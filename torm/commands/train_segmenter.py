@@ -28,7 +28,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from torm.commands._common import add_overrides, add_parser, count_arg, print_json
+from torm.commands._common import add_overrides, add_parser, check_output_dir, check_output_file, count_arg, print_json
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     spec = cfgmod.from_dict(SegTrainingSpec, data, overrides, where=str(args.config or "train-segmenter"))
     data_dir = Path(args.data) if args.data else Path("runs/seg_data") / spec.data.renderer
     out = DEFAULT_MODEL if args.install else Path(args.out) if args.out else Path(args.work) / "learned_seg.onnx"
+    check_output_file(out)  # a file on the way or an unwritable place: refused before hours of rendering
+    check_output_dir(Path(args.work), "--work")
     card = run_training(spec, data_dir, Path(args.work), out, evaluate_after=args.evaluate,
                         export_only=args.export_only, workers=args.workers)
     print_json({"out": str(out), "card": str(out.with_suffix(".json")), "training": card["training"],
@@ -87,6 +89,7 @@ def _finetune(args: argparse.Namespace) -> int:
     from torm.segmentation.training.finetune import finetune
 
     out = Path(args.out) if args.out else Path(args.work) / "learned_seg_finetuned.onnx"
+    check_output_file(out)
     card = finetune(args.finetune, out, base_model=args.init, steps=args.steps, threads=args.threads or 1,
                     rehearsal_shards=args.rehearsal_shards, rehearsal_data=Path(args.work) / "rehearsal")
     print_json({"out": str(out), "card": str(out.with_suffix(".json")), "frames": len(card["finetune"]["frames"]),
