@@ -11,13 +11,13 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import torm
-from torm.env import GRASP_SELECT_HARD_ID, GRASP_SELECT_ID, GRASP_SELECT_MEASURED_ID, PICK_ID
+from torm.env import GRASP_SELECT_HARD_ID, GRASP_SELECT_ID, GRASP_SELECT_MEASURED_ID, GRASP_SELECT_STRESS_ID, PICK_ID
 
 gym.register_envs(torm)
 
 CHEAP = {"n_views": 8, "capture_scale": 0.25, "top_k": 2, "n_points": 256}
 VARIANTS = {PICK_ID: {"obs_mode": "state"}, GRASP_SELECT_ID: CHEAP, GRASP_SELECT_MEASURED_ID: CHEAP,
-            GRASP_SELECT_HARD_ID: {**CHEAP, "n_views": 12}}
+            GRASP_SELECT_HARD_ID: {**CHEAP, "n_views": 12}, GRASP_SELECT_STRESS_ID: {**CHEAP, "n_views": 12}}
 
 
 def test_every_registered_torm_id_is_covered():

@@ -38,6 +38,11 @@ GRASP_SELECT_HARD_ID = "torm/TormGraspSelectHard-v0"
 #: Settings of :data:`GRASP_SELECT_HARD_ID` (keyword arguments of its spec).
 GRASP_SELECT_HARD_KWARGS = {"suite": "syn_hard", "realism": "measured", "perception": "torm", "segmenter": "noisy",
                             "top_k": 16}
+#: The hard variant in the ``stress`` world at 3x the measured ranges (sim/REALISM.md): contact, grip force, mass,
+#: calibration and execution errors beyond what a cell shows, so the planner's first choice fails often enough that
+#: the choice matters (benchmarks/results/grasp_select_policies_stress.md: best-of-K above the planner).
+GRASP_SELECT_STRESS_ID = "torm/TormGraspSelectStress-v0"
+GRASP_SELECT_STRESS_KWARGS = {**GRASP_SELECT_HARD_KWARGS, "realism": "stress", "stress": 3.0}
 
 
 def register_envs() -> None:
@@ -55,10 +60,13 @@ def register_envs() -> None:
     if GRASP_SELECT_HARD_ID not in registry:
         gymnasium.register(id=GRASP_SELECT_HARD_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
                            max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS, kwargs=dict(GRASP_SELECT_HARD_KWARGS))
+    if GRASP_SELECT_STRESS_ID not in registry:
+        gymnasium.register(id=GRASP_SELECT_STRESS_ID, entry_point="torm.env.grasp_select_env:TormGraspSelectEnv",
+                           max_episode_steps=GRASP_SELECT_MAX_EPISODE_STEPS, kwargs=dict(GRASP_SELECT_STRESS_KWARGS))
 
 
 register_envs()
 
 __all__ = ["GRASP_SELECT_HARD_ID", "GRASP_SELECT_HARD_KWARGS", "GRASP_SELECT_ID", "GRASP_SELECT_MAX_EPISODE_STEPS",
-           "GRASP_SELECT_MEASURED_ID", "PICK_ID",
+           "GRASP_SELECT_MEASURED_ID", "GRASP_SELECT_STRESS_ID", "GRASP_SELECT_STRESS_KWARGS", "PICK_ID",
            "PICK_MAX_EPISODE_STEPS", "register_envs"]
