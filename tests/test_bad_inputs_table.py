@@ -56,6 +56,19 @@ def test_the_bound_holds_for_configs_built_in_python():
     assert GraspPlannerConfig(n_samples=65_536).n_samples == 65_536  # the bound itself is valid
 
 
+def test_a_carve_that_does_not_fit_is_refused_before_it_starts(monkeypatch):
+    import numpy as np
+
+    import torm.resources
+    from torm.reconstruction.carve import carve_visual_hull
+
+    monkeypatch.setattr(torm.resources, "available_memory_bytes", lambda: 16 << 30)  # whatever this machine has
+
+    eye_k, eye_t = np.repeat(np.eye(3)[None], 2, 0), np.repeat(np.eye(4)[None], 2, 0)
+    with pytest.raises(ConfigError, match=r"carve at 1024 voxels \(1024 x 1024 x 1024\) needs about 96 GiB.*carve_res"):
+        carve_visual_hull(np.ones((2, 10, 10)), eye_k, eye_t, np.array([[0, 0, 0], [1, 1, 1.0]]), 1024)
+
+
 def test_the_grasp_planner_refuses_a_plan_that_does_not_fit_before_sampling():
     import numpy as np
 
@@ -104,6 +117,7 @@ CLI_CASES: list[tuple[list[str], str]] = [
     (_trial("reconstruction.grid_res=100000"), "grid_res"),
     (_trial("reconstruction.carve_res=1e6"), "carve_res"),
     (_trial("reconstruction.points_per_object=0"), "points_per_object"),
+    (_trial("reconstruction.max_band_cells=1e12"), "max_band_cells"),
     (_trial("capture.n_views=1000000000"), "n_views"),
     (_trial("capture.pbr.spp=1e9"), "spp"),
     (_trial("capture.pbr.max_depth=1e9"), "max_depth"),

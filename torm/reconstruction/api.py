@@ -195,7 +195,7 @@ class ReconstructionConfig:
     cell_px: float = 1.5
     max_band_res: int = 384
     min_band_res: int = 96
-    max_band_cells: int | None = 120_000
+    max_band_cells: Annotated[int | None, Range(1, 10_000_000, "surface cells; ~0.5 kB each")] = 120_000
     facet_frac: float = 0.3
     band: float = 0.4
     carve_res: int = 128

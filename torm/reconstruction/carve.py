@@ -23,6 +23,7 @@ import numpy as np
 
 from torm.errors import ReconstructionError
 from torm.mesh.split import signed_volume
+from torm.resources import CARVE_BYTES_PER_VOXEL, check_fits
 from torm.types import TriMesh
 
 log = logging.getLogger(__name__)
@@ -89,6 +90,8 @@ def carve_occupancy(
         raise ReconstructionError(f"carve: need Ks ({V}, 3, 3) and poses ({V}, 4, 4), got {Ks.shape} and {Ts.shape}")
     b = np.asarray(bounds_2x3, dtype=np.float64)
     (nx, ny, nz), pitch = voxel_grid_shape(b, res)
+    check_fits(nx * ny * nz * CARVE_BYTES_PER_VOXEL, f"carve at {res} voxels ({nx} x {ny} x {nz})",
+               "lower reconstruction.carve_res (default 128)")
     origin = b[0].copy()
     axes = [origin[a] + (np.arange(n) + 0.5) * pitch for a, n in enumerate((nx, ny, nz))]
     k0 = 0 if table_z is None else int(np.searchsorted(axes[2], float(table_z)))
@@ -146,7 +149,8 @@ def carve_visual_hull(
     """Carve the silhouettes into a ``res``-voxel grid over the box and mesh it (see the module docstring).
 
     Cost (measured in ``benchmarks/results/recon_vs_carve.md``): one projection of the surviving voxel
-    centres per view; memory ``~40 bytes x voxels`` at the first view.
+    centres per view; memory about :data:`torm.resources.CARVE_BYTES_PER_VOXEL` (96) bytes x voxels at the first
+    view, checked against the free memory before any work.
     """
     occ, origin, pitch = carve_occupancy(silhouettes_vxhxw, Ks_vx3x3, T_world_cam_vx4x4, bounds_2x3, res,
                                          table_z=table_z)
