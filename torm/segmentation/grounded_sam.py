@@ -323,7 +323,8 @@ class GroundedSAMSegmenter(Segmenter):
             self.gdino = None
             return
         if not c.bert_vocab:
-            raise ModelFileError("grounded_sam.bert_vocab is not set; point it at bert-base-uncased's vocab.txt")
+            raise ModelFileError("grounded_sam.bert_vocab is not set; point it at the vocab.txt `torm export-models` "
+                                 "writes beside the Grounding DINO export (bert-base-uncased's vocabulary)")
         self.tokenizer = WordPieceTokenizer.from_file(c.bert_vocab)
         self.gdino: BoundSession | None = open_session(c.gdino_model, "grounded_sam.gdino_model", GDINO_INPUTS,
                                                        GDINO_OUTPUTS, providers, c.threads)

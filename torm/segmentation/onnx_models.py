@@ -131,10 +131,12 @@ def open_session(
 
     expected = _signature_text(inputs, outputs)
     if not str(path):
-        raise ModelFileError(f"{config_key} is not set; point it at an ONNX file with {expected}")
+        raise ModelFileError(f"{config_key} is not set; point it at an ONNX file with {expected} (`torm export-models "
+                             "--out models/` writes them and a config YAML from local weight folders)")
     p = Path(path).expanduser()
     if not p.is_file():
-        raise ModelFileError(f"{config_key} file {p} does not exist; expected an ONNX model with {expected}")
+        raise ModelFileError(f"{config_key} file {p} does not exist; expected an ONNX model with {expected} (`torm "
+                             "export-models` writes one from local weight folders)")
     opts = ort.SessionOptions()
     threads = session_threads(threads)
     if threads > 0:
