@@ -21,6 +21,7 @@ reconstructions with what their attempts did. Units: m, s; world frame.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import replace
 from typing import Any
 
@@ -192,11 +193,22 @@ class TrialJudge(PickJudge):
         self.matching: list[dict[str, Any]] = []
         #: every full capture the cameras made, ground truth included, in order (the loop got them without it)
         self.captures: list[Any] = []
+        #: the paper's OCC of the first capture (0..1), measured when it was taken; None without masks or support
+        self.occlusion: float | None = None
+        self.occlusion_s: float = 0.0
 
     def saw(self, capture: Any) -> None:
         """Keep a full capture (masks, ideal depth, object ids) the loop received without its ground truth
-        (:class:`torm.backend.blind.LoopBackend`'s ``truth_sink``), for scoring after the fact."""
+        (:class:`torm.backend.blind.LoopBackend`'s ``truth_sink``), for scoring after the fact.
+
+        The first capture's OCC is measured here, while the scene still stands as the cameras saw it: the solo
+        silhouettes it renders must come from the same object poses as the capture's masks (after a pick they do
+        not, and OCC read near zero)."""
         self.captures.append(capture)
+        if len(self.captures) == 1 and capture.has_masks and hasattr(self.backend, "occlusion_ratio"):
+            t0 = time.perf_counter()
+            self.occlusion = float(self.backend.occlusion_ratio(capture))
+            self.occlusion_s = time.perf_counter() - t0
 
     def perceived(self, point_clouds: list[ObjectPointCloud]) -> None:
         """Match the reconstructions (labels ``object_index``) to the real objects as they stand now."""

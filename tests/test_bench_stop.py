@@ -21,6 +21,13 @@ from torm.testing.fake_rosbridge import ACTION, FakeRosbridge, write_cell_yaml
 TESTS_DIR = str(Path(__file__).resolve().parent)
 
 
+def _timeline(ros: FakeRosbridge, since: float) -> str:
+    """What reached the fake rosbridge after ``since``: one line per message (s after it, op, topic or service)."""
+    with ros._lock:
+        pairs = [(t, m) for m, t in zip(ros.received, ros.received_at, strict=True) if t >= since]
+    return "\n".join(f"{t - since:8.3f} {m.get('op')} {m.get('topic') or m.get('service') or ''}" for t, m in pairs)
+
+
 @pytest.mark.parametrize("engine", ["pool", "ray"])
 def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path, engine):
     rcfg = load_robot_config("inovo_2f85")
@@ -58,7 +65,8 @@ def test_sigterm_to_a_real_bench_cancels_and_disables_the_arm(tmp_path, engine):
         # a loaded machine; the driver's backstop cancel and disable come after every trial process is gone).
         cancels = [i for i, m in enumerate(after) if m.get("topic") == f"{ACTION}/cancel"]
         i_cancel = cancels[0] if engine == "pool" else cancels[-1]
-        assert not [m for m in after[i_cancel:] if m.get("topic") == f"{ACTION}/goal" and m["op"] == "publish"]
+        late_goals = [m for m in after[i_cancel:] if m.get("topic") == f"{ACTION}/goal" and m["op"] == "publish"]
+        assert not late_goals, _timeline(ros, t_term) + "\n" + err[-3000:]
         assert any(m.get("service") == "/robot/disable" for m in after[i_cancel:])  # disabled after that cancel
         assert ros.controller.end_time() <= time.monotonic()
         # the interrupted trial left no row (it runs again on resume) and the session says why it ended

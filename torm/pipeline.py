@@ -518,11 +518,9 @@ def _score(judge: Any, backend: Any, attempts: list[dict[str, Any]], perceptions
 
             result["perception"]["mask_quality"] = mask_quality(masks, truth.masks())  # the judge's score
             result["perception"]["mask_quality_reference"] = mask_reference(truth)
-        seen = truth if truth is not None else first.info["capture"]
-        if hasattr(backend, "occlusion_ratio") and seen.has_masks:
-            t = time.perf_counter()
-            result["occ"] = backend.occlusion_ratio(seen)
-            timings["occlusion_metric"] = time.perf_counter() - t
+        if getattr(judge, "occlusion", None) is not None:  # measured by the judge when the first capture was taken
+            result["occ"] = judge.occlusion
+            timings["occlusion_metric"] = judge.occlusion_s
 
     def reason(i: int) -> str:
         if first is None:

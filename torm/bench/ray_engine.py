@@ -23,8 +23,8 @@ dies (SIGKILL, out of memory), the driver itself runs the stop prepared by the t
 hook (:func:`torm.bench.isolate.driver_stop`: a real arm is cancelled and disabled over a new connection,
 within :data:`torm.hardware.remote_stop.STOP_TIMEOUT_S` of noticing); a trial process that dies under a live
 Ray worker is stopped by that worker the same way. When the driver stops, each task first runs its trial's
-own stop path (cancel, then disable, at once); ``stop_grace_s`` + 1 s after the cancel, when every trial process
-is gone, the driver stops every real arm that was in flight once more, as a backstop. A cluster
+own stop path (cancel, then disable, at once); ``stop_grace_s`` + :data:`CANCEL_DELIVERY_S` after the cancel,
+when every trial process is gone, the driver stops every real arm that was in flight once more, as a backstop. A cluster
 address that does not answer within :data:`CONNECT_TIMEOUT_S` is refused with a message instead of Ray's
 retries.
 """
@@ -48,6 +48,11 @@ log = logging.getLogger(__name__)
 
 #: How long the driver waits for a Ray cluster address to accept a connection (s).
 CONNECT_TIMEOUT_S = 10.0
+
+#: Allowance (s) for a cancel to reach a running task: Ray delivers it asynchronously (raylet -> worker -> a
+#: KeyboardInterrupt in the task), seconds late on a loaded machine, and the trial's SIGTERM -> SIGKILL grace
+#: starts only then. The driver's backstop stop waits ``stop_grace_s`` + this after its cancel.
+CANCEL_DELIVERY_S = 5.0
 
 
 def _ray_trial(spec: TrialSpec, job: TrialJob) -> dict[str, Any]:
@@ -178,11 +183,11 @@ def ray_rows(specs: Sequence[TrialSpec], job: TrialJob, workers: int, address: s
             # A cancelled ref can read as done while its worker still stops the trial, and a trial process is
             # SIGKILLed stop_grace_s after the cancel at the latest: stop the arms from here only after that, so
             # nothing a dying trial still sends can follow the driver's cancel and disable.
-            time.sleep(max(0.0, t_cancel + job.stop_grace_s + 1.0 - time.monotonic()))
+            time.sleep(max(0.0, t_cancel + job.stop_grace_s + CANCEL_DELIVERY_S - time.monotonic()))
             for spec, stop in pending:
                 driver_stop(stop, spec.key)
         if started_here:
             ray.shutdown()
 
 
-__all__ = ["CONNECT_TIMEOUT_S", "check_address", "ray_rows"]
+__all__ = ["CANCEL_DELIVERY_S", "CONNECT_TIMEOUT_S", "check_address", "ray_rows"]
