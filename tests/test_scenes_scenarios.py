@@ -13,6 +13,7 @@ from sim.scenes.placement import (
     pairwise_gaps,
     place_objects,
     polygon_gap,
+    scenario_rules,
 )
 from sim.scenes.scenario import Scenario, get_scenario, list_scenarios, load_suite
 from torm.errors import ConfigError, SceneError, UnknownNameError
@@ -100,9 +101,9 @@ def test_placement_is_deterministic_per_seed():
 
 @pytest.mark.parametrize("name", [f"syn{i}" for i in range(1, 13)] + [f"rw{i}" for i in range(1, 9)])
 def test_placement_respects_workspace_and_gaps(name):
-    cfg = PlacementConfig()
     for seed in range(3):
         sc, poses = _layout(name, seed)
+        cfg = scenario_rules(sc, PlacementConfig())  # the scenario's own gap range where it declares one
         assets = [get_object(n) for n in sc.objects]
         for a, p in zip(assets, poses, strict=True):
             fp = footprint_world(a, p)
@@ -182,3 +183,30 @@ def test_a_trial_prompts_a_learned_segmenter_with_its_scenarios_targets(caplog):
     assert seg.config.classes == ("transparent",)
     assert "cannot be prompted for opaque" in caplog.text
     assert prompt_scenario_targets(seg, "a_recorded_capture") == ("transparent",)
+
+
+@pytest.mark.parametrize("kw, field", [({"gap": (1.0, 0.5)}, "gap"), ({"gap": (-0.1, 1.0)}, "gap"),
+                                       ({"gap": (1.0, 40.0)}, "gap"), ({"gap": (1.0,)}, "gap"),
+                                       ({"occ_paper": 46.0}, "occ_paper"), ({"occ_paper": -0.1}, "occ_paper")])
+def test_a_bad_gap_or_paper_occ_is_refused_by_name(kw, field):
+    with pytest.raises(ConfigError, match=f"scenario 'x': {field}"):
+        Scenario(name="x", objects=("ball", "cube"), **kw)
+
+
+def test_a_scenario_gap_replaces_its_spacing_class_rule():
+    sc = Scenario(name="x", objects=("ball", "cube"), spacing="dense", gap=(1.5, 2.0))
+    base = PlacementConfig()
+    rules = scenario_rules(sc, base)
+    assert rules.dense.lo == 1.5 and rules.dense.hi == 2.0 and rules.dense.hi_floor == base.dense.hi_floor
+    assert rules.moderate == base.moderate and scenario_rules(get_scenario("rw3"), base) == base
+    w = 0.5 * (get_object("ball").width + get_object("cube").width)
+    for seed in range(5):
+        poses = place_objects(sc, seed)
+        gap = pairwise_gaps([get_object("ball"), get_object("cube")], poses)[0, 1]
+        assert 1.5 * w - 1e-9 <= gap <= 2.0 * w + 1e-9  # two objects: the second sits within hi of the first
+
+
+def test_rw_scenarios_state_the_papers_occlusion():
+    occ = {n: get_scenario(n).occ_paper for n in list_scenarios("rw")}
+    assert occ == {"rw1": 0.0, "rw2": 0.0, "rw3": 0.10, "rw4": 0.16, "rw5": 0.28, "rw6": 0.02, "rw7": 0.46,
+                   "rw8": 0.42}  # Table III

@@ -23,7 +23,7 @@ finally SceneError names the scenario and the attempts made.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -157,7 +157,7 @@ def place_scene(
 ) -> Layout:
     """Sample the scene's layout: object poses (scenario order) and, for a fixture scene, the fixture's pose."""
     sc = get_scenario(scenario)
-    cfg = config or PlacementConfig()
+    cfg = scenario_rules(sc, config or PlacementConfig())
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     assets = [get_object(n) for n in sc.objects]
     ws = np.asarray(cfg.workspace_xy, dtype=np.float64)
@@ -178,6 +178,15 @@ def place_scene(
         f"{cfg.max_layouts} layouts x {cfg.tries_per_object} attempts per object; use fewer or smaller objects, "
         "'moderate' spacing, or fixed poses"
     )
+
+
+def scenario_rules(sc: Scenario, cfg: PlacementConfig) -> PlacementConfig:
+    """``cfg`` with the scenario's own gap range (``Scenario.gap``, object widths) as its spacing class's rule."""
+    if sc.gap is None:
+        return cfg
+    name = sc.spacing if sc.spacing in ("dense", "packed") else "moderate"
+    base: GapRule = getattr(cfg, name)
+    return replace(cfg, **{name: GapRule(sc.gap[0], sc.gap[1], base.hi_floor, base.min_gap)})
 
 
 def _place_group(ids: list[int], assets: list[ObjectAsset], ws: np.ndarray, spacing: str, rng: np.random.Generator,

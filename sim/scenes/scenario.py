@@ -36,6 +36,8 @@ Spacing = Literal["moderate", "dense", "packed"]
 SPACINGS: tuple[str, ...] = ("moderate", "dense", "packed")
 #: classes a scenario's ``targets`` may name (the learned segmenter's prompt vocabulary, ``torm.segmentation.learned``)
 TARGET_CLASSES: tuple[str, ...] = _vocab.CLASSES
+#: Largest ``Scenario.gap`` bound (object widths): beyond it the objects no longer share a 40 cm workspace.
+MAX_GAP_WIDTHS = 8.0
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,11 @@ class Scenario:
     ``targets``: the classes the task picks (:data:`TARGET_CLASSES`), the prompt an image segmenter with classes is
     given, as the paper's text prompt: RW2 and RW5 name the opaque cup (``[transparent, opaque]``). Declared by the
     task, not read from the scene's objects.
+    ``gap``: ``(lo, hi)`` in multiples of a pair's mean footprint width, replacing the spacing class's gap rule for
+    this scenario (every gap >= max(the class's minimum gap, lo w); each new object within hi w of its anchor:
+    ``sim.scenes.placement``); the class's minimum gap (20 mm: a finger fits) still holds. None: the class's rule.
+    ``occ_paper``: the paper's occlusion ratio for this scenario (0..1, Table III), when it reports one; the scene's
+    measured OCC is compared with it (``benchmarks/scene_occlusion.py``).
     """
 
     name: str
@@ -59,8 +66,19 @@ class Scenario:
     fixture: str | None = None
     fixture_objects: int = 0
     targets: tuple[str, ...] = ("transparent",)
+    gap: tuple[float, float] | None = None
+    occ_paper: float | None = None
 
     def __post_init__(self) -> None:
+        if self.gap is not None:
+            gap = tuple(float(g) for g in self.gap)
+            if len(gap) != 2 or not 0.0 <= gap[0] <= gap[1] <= MAX_GAP_WIDTHS:
+                raise ConfigError(f"scenario {self.name!r}: gap: need [lo, hi] with 0 <= lo <= hi <= "
+                                  f"{MAX_GAP_WIDTHS:g} (multiples of the objects' width), got {list(self.gap)}")
+            object.__setattr__(self, "gap", gap)
+        if self.occ_paper is not None and not 0.0 <= self.occ_paper <= 1.0:
+            raise ConfigError(f"scenario {self.name!r}: occ_paper: a share of views in [0, 1] (0.46 = 46 %), got "
+                              f"{self.occ_paper}")
         object.__setattr__(self, "targets", tuple(self.targets))
         bad = [t for t in self.targets if t not in TARGET_CLASSES]
         if bad or not self.targets or len(set(self.targets)) != len(self.targets):
