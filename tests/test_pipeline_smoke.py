@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
 
 from torm.errors import ConfigError, UnknownNameError
@@ -111,6 +114,35 @@ def test_trial_writes_a_rerun_recording(tmp_path):
     # growing paths are logged once (static); per step only transforms and the TCP point
     assert rows["/world/motion/tcp_path"] == 1 and "/world/motion/tcp_path" not in temporal
     assert temporal["/world/motion/tcp"] > 50
+    # docs/recordings.md's entity tree: every documented path exists, as documented static or temporal
+    for pattern, kind in _documented_entities():
+        hits = [e for e in rows if pattern.fullmatch(e)]
+        assert hits, f"docs/recordings.md lists {pattern.pattern}, which the recording lacks"
+        if kind == "temporal":
+            assert any(e in temporal for e in hits), f"{pattern.pattern} is documented temporal"
+        else:
+            assert not any(e in temporal for e in hits), f"{pattern.pattern} is documented static"
+    placeholders = {"<iii>": r"\d{3}", "<k>": r"\d+", "<g>": r"\d+", "<name>": r"[a-z0-9_]+", "<body>": r"[a-z0-9_]+"}
+    logged = [e for e in rows if e.startswith(("/world/", "/signals/", "/events", "/outcome"))]
+    documented = [p for p, _ in _documented_entities(placeholders)]
+    missing = [e for e in logged if not any(p.fullmatch(e) for p in documented)]
+    assert not missing, f"entities docs/recordings.md does not list: {missing}"
+
+
+def _documented_entities(placeholders: dict[str, str] | None = None) -> list[tuple[re.Pattern, str]]:
+    """(path pattern, 'static' | 'temporal') of each line of docs/recordings.md's entity tree."""
+    placeholders = placeholders or {"<iii>": r"\d{3}", "<k>": r"\d+", "<g>": r"\d+", "<name>": r"[a-z0-9_]+",
+                                    "<body>": r"(link\d|gripper_[a-z_]+)"}
+    text = (Path(__file__).resolve().parents[1] / "docs" / "recordings.md").read_text()
+    block = text.split("<!-- entity-tree")[1].split("```text\n", 1)[1].split("```", 1)[0]
+    out = []
+    for line in block.strip().splitlines():
+        path, kind = line.split()[:2]
+        rx = re.escape(path)
+        for ph, sub in placeholders.items():
+            rx = rx.replace(re.escape(ph), sub)
+        out.append((re.compile(rx), kind))
+    return out
 
 
 @pytest.mark.torm_smoke(scenario="syn11", seed=0, method="oracle", min_success=1.0)
