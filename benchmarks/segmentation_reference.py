@@ -58,7 +58,7 @@ def _capture_job(args: tuple[str, int, int, float, int, str, str]) -> str:
     if (Path(folder) / "transforms.json").exists():
         return folder
     from sim.camera_rig import CameraRigConfig, SimCameraRig
-    from sim.render import make_renderer
+    from sim.renderers import make_renderer
     from sim.world import build_world
     from torm.capture.io import save_capture
     from torm.capture.render_settings import PbrSettings

@@ -546,7 +546,7 @@ class SimBackend:
             from sim.camera_rig import SimCameraRig
 
             if self.renderer != "mujoco" and self._rgb_renderer is None:
-                from sim.render import make_renderer
+                from sim.renderers import make_renderer
 
                 self._rgb_renderer = make_renderer(self.renderer, self.world, self._render_settings)
             self._rig = SimCameraRig.from_world(self.world, self._camera_config, rgb_renderer=self._rgb_renderer,

@@ -67,6 +67,7 @@ ensure_headless_gl()  # MuJoCo picks its GL backend when first imported: default
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from sim.workspace import WORKSPACE_BOUNDS  # noqa: E402
 from torm.errors import CaptureError, ConfigError  # noqa: E402
 from torm.geometry import look_at_cv  # noqa: E402
 from torm.types import CameraView, Capture  # noqa: E402
@@ -81,8 +82,8 @@ GROUP_ENV, GROUP_ROBOT, GROUP_GLASS, GROUP_COLLISION, GROUP_OPAQUE = 0, 1, 2, 3,
 #: Group used transiently to isolate one object for solo renders (never used by scenes).
 _GROUP_SOLO = 5
 
-#: Default workspace box (m) that the objects occupy (CONTEXT.md).
-DEFAULT_WORKSPACE_BOUNDS = np.array([[0.33, -0.22, -0.005], [0.77, 0.22, 0.20]])
+#: Default workspace box (m) that the objects occupy (:data:`sim.workspace.WORKSPACE_BOUNDS`).
+DEFAULT_WORKSPACE_BOUNDS = WORKSPACE_BOUNDS
 
 
 @dataclass(frozen=True)

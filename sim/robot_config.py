@@ -544,7 +544,7 @@ def load_robot_config(name_or_path: str | Path, overrides: tuple[str, ...] | lis
 def solve_home(rcfg: RobotConfig, model: mujoco.MjModel | None = None,
                heights_m: tuple[float, ...] = (0.30, 0.20, 0.12)) -> np.ndarray:
     """A home pose for a robot without ``arm.home``: the TCP above the reconstruction box
-    (:data:`sim.world.WORKSPACE_BOUNDS`) pointing down, closing axis along world y, solved with execution's IK
+    (:data:`sim.workspace.WORKSPACE_BOUNDS`) pointing down, closing axis along world y, solved with execution's IK
     (:meth:`torm.execution.ik.IKSolver.solve_free`) from the middle of the joint limits. Tried in order: above the
     box centre, then halfway to the box point nearest the base, each at ``heights_m`` (m above the table); the
     first reachable one wins (a small arm gets a lower, nearer home).
@@ -553,7 +553,7 @@ def solve_home(rcfg: RobotConfig, model: mujoco.MjModel | None = None,
         (n,) joint angles (rad). Raises SceneError when none is reachable (the base cannot reach the box).
     """
     from sim.robot_reach import _down_rotation
-    from sim.world import WORKSPACE_BOUNDS
+    from sim.workspace import WORKSPACE_BOUNDS
     from torm.execution.ik import IKSolver
 
     model = model if model is not None else rcfg.robot_model()

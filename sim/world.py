@@ -42,6 +42,7 @@ from sim.scenes.fixtures import PlacedFixture, get_fixture, pose_matrix
 from sim.scenes.objects import ObjectAsset, get_object
 from sim.scenes.placement import Placement, PlacementConfig, place_scene
 from sim.scenes.scenario import Scenario, get_scenario
+from sim.workspace import TABLE_HEIGHT, WORKSPACE_BOUNDS  # noqa: F401  (re-exported: defined here before)
 from torm.errors import ConfigError, SceneError
 from torm.types import TriMesh
 
@@ -52,8 +53,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-TABLE_HEIGHT = 0.0  # z of the table top surface (m)
-WORKSPACE_BOUNDS = np.array([[0.33, -0.22, -0.005], [0.77, 0.22, 0.20]])  # reconstruction box (m)
 FLOOR_Z = -0.75  # floor below the table top (m)
 TABLE_X = (-0.45, 1.25)  # table top extent (m); the robot base at the origin sits on it
 TABLE_Y = (-0.90, 0.90)

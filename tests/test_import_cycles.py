@@ -1,8 +1,10 @@
-"""The house has no import cycles: the module-level imports of ``torm`` and ``sim`` form a DAG.
+"""The house has no import cycles: the imports of ``torm`` and ``sim`` form a DAG.
 
-Imports inside functions are deliberate deferrals (optional dependencies, heavy modules) and do not count;
-neither do ``if TYPE_CHECKING:`` blocks. ``from pkg import sub`` where ``sub`` is a module is an edge to
-``pkg.sub``; importing a module's own ancestor package is implicit in Python and not an edge.
+Two graphs: the module-level imports (what runs at import time: a strict DAG), and every import including those
+inside functions (deferrals for optional or heavy dependencies must still point downwards: a function-level import
+that closes a circle is a design circle, merely hidden). ``if TYPE_CHECKING:`` blocks count in neither (they never
+run; annotations are strings). ``from pkg import sub`` where ``sub`` is a module is an edge to ``pkg.sub``;
+importing a module's own ancestor package is implicit in Python and not an edge.
 """
 
 from __future__ import annotations
@@ -41,7 +43,26 @@ def _runtime_statements(body: list[ast.stmt]) -> list[ast.stmt]:
     return out
 
 
-def import_graph() -> dict[str, set[str]]:
+def _all_runtime_nodes(body: list[ast.stmt]) -> list[ast.AST]:
+    """Every node under ``body`` (function and class bodies included) except those in ``if TYPE_CHECKING:``."""
+    out: list[ast.AST] = []
+    for stmt in _runtime_statements(body):
+        out.append(stmt)
+        for child in ast.iter_child_nodes(stmt):
+            if isinstance(child, ast.stmt):
+                out += _all_runtime_nodes([child])
+            else:
+                out += list(ast.walk(child))
+        for field in ("body", "orelse", "finalbody", "handlers"):
+            for sub in getattr(stmt, field, None) or []:
+                if isinstance(sub, ast.ExceptHandler):
+                    out += _all_runtime_nodes(sub.body)
+    return out
+
+
+def import_graph(function_level: bool = False) -> dict[str, set[str]]:
+    """Module -> the torm/sim modules it imports (at module level; with ``function_level`` also inside functions,
+    classes and methods, ``TYPE_CHECKING`` blocks excluded)."""
     mods = module_files()
 
     def owner(name: str) -> str | None:
@@ -52,7 +73,9 @@ def import_graph() -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for m, path in mods.items():
         deps: set[str] = set()
-        for node in _runtime_statements(ast.parse(path.read_text()).body):
+        tree = ast.parse(path.read_text())
+        nodes = _all_runtime_nodes(tree.body) if function_level else _runtime_statements(tree.body)
+        for node in nodes:
             if isinstance(node, ast.Import):
                 deps |= {d for a in node.names if (d := owner(a.name))}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -99,3 +122,62 @@ def test_no_import_cycles_in_torm_and_sim():
     assert len(graph) > 100 and "torm.reconstruction.dmtet" in graph["torm.reconstruction.api"]
     cycle = find_cycle(graph)
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+#: Circles that function-level imports still close, each with why it stands (none since the loop, rendering and robot
+#: circles were broken, 2026-12-07; type-only back edges under TYPE_CHECKING do not count). The test
+#: fails on any other circle and on a listed one that no longer exists.
+KNOWN_CIRCLES: dict[frozenset[str], str] = {}
+
+
+def strongly_connected(graph: dict[str, set[str]]) -> list[frozenset[str]]:
+    """The circles of ``graph``: its strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[frozenset[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = set()
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.add(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(frozenset(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_circle_finder_finds_hand_built_circles():
+    g = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a", "e"}, "e": {"d"}, "f": set()}
+    assert sorted(map(sorted, strongly_connected(g))) == [["a", "b", "c"], ["d", "e"]]
+    assert strongly_connected({"a": {"b"}, "b": set()}) == []
+
+
+def test_function_level_imports_close_no_circle_but_the_known_one():
+    graph = import_graph(function_level=True)
+    assert "sim.robot_compose" in graph["sim.robot_config"]  # imported inside a method: an edge in this graph
+    assert "sim.robot_compose" not in import_graph()["sim.robot_config"]  # ... and not in the module-level one
+    assert "torm.trial_config" in graph["torm.loop"] and "torm.pipeline" not in graph["torm.loop"]
+    circles = set(strongly_connected(graph))
+    new = [sorted(c) for c in circles - set(KNOWN_CIRCLES)]
+    assert not new, f"design circles through function-level imports: {new}"
+    gone = [sorted(c) for c in set(KNOWN_CIRCLES) - circles]
+    assert not gone, f"broken circles still listed in KNOWN_CIRCLES (remove them): {gone}"

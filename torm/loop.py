@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -30,10 +30,8 @@ from torm.perception import (
     most_top_down_pose,
     most_top_down_view,
 )
+from torm.trial_config import TABLE_SOURCES, TrialConfig
 from torm.types import Capture, ObjectPointCloud, TriMesh
-
-if TYPE_CHECKING:
-    from torm.pipeline import TrialConfig
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +42,6 @@ DEPTH_CHANNELS = ("sensor_depth", "mask")
 MASK_CHANNELS = ("depth", "mask")
 #: Segmenters that read the RGB images (every other one works from the simulator's masks).
 IMAGE_SEGMENTERS = ("learned", "grounded_sam", "difference")
-#: Sources of the table height the loop plans with (``TrialConfig.table``).
-TABLE_SOURCES = ("declared", "capture")
 #: Two reconstructions within this horizontal distance (m) are the same object for re-perception.
 SAME_OBJECT_XY = 0.03
 

@@ -1,11 +1,13 @@
-"""Image renderers of the simulated camera: the MuJoCo rasteriser and a physically based path tracer.
+"""Physically based rendering of the simulated camera, and the renderer interface both renderers implement.
 
 One interface (:class:`Renderer`): a renderer is bound to a world and renders its *current* state (objects
 where physics put them) for a list of :class:`RenderCamera` (``K`` (3, 3) px, ``T_world_cam`` (4, 4) OpenCV axes
 in metres, ``width``, ``height``), returning one :class:`RenderedView` per camera: ``rgb`` (H, W, 3) uint8 and
-``instance`` (H, W) int32 (0 background, k = object k). ``capture.renderer`` picks one for the camera rig:
+``instance`` (H, W) int32 (0 background, k = object k). ``capture.renderer`` picks one for the camera rig
+(:func:`sim.renderers.make_renderer`):
 
-- ``mujoco`` (:class:`MujocoRenderer`): MuJoCo's OpenGL rasteriser (glass as grey alpha blending).
+- ``mujoco`` (:class:`sim.mujoco_renderer.MujocoRenderer`, built on the camera rig, so it lives above this
+  package): MuJoCo's OpenGL rasteriser (glass as grey alpha blending).
 - ``pbr`` (:class:`MitsubaRenderer`): Mitsuba 3 path tracing on the CPU (``llvm_ad_rgb`` with Debian's
   ``libllvm19``, ``scalar_rgb`` fallback): glass as a smooth dielectric (IOR per object), diffuse opaque
   objects, a table texture and lighting randomised from the layout seed, an exact first-hit instance-id
@@ -48,9 +50,9 @@ from sim.render.textures import TABLE_RANGES, table_texture
 from torm.capture.render_settings import PbrSettings
 
 __all__ = [
-    "LIGHTING_RANGES", "Lighting", "MitsubaRenderer", "MujocoRenderer", "PbrSettings", "RenderCache", "RenderCamera",
+    "LIGHTING_RANGES", "Lighting", "MitsubaRenderer", "PbrSettings", "RenderCache", "RenderCamera",
     "RenderError", "RenderedView", "Renderer", "TABLE_RANGES", "auto_exposure_gain", "build_scene_dict", "cache_key",
-    "cache_root", "cv_to_mitsuba", "denoise", "describe_world", "instance_ids", "make_renderer", "render_linear",
+    "cache_root", "cv_to_mitsuba", "denoise", "describe_world", "instance_ids", "render_linear",
     "sample_lighting", "sensor_dict", "table_texture", "tone_map",
 ]
 
@@ -59,7 +61,7 @@ _LAZY = {
     "cv_to_mitsuba": "sim.render.mitsuba_renderer", "auto_exposure_gain": "sim.render.mitsuba_renderer",
     "sensor_dict": "sim.render.mitsuba_renderer", "tone_map": "sim.render.mitsuba_renderer",
     "denoise": "sim.render.mitsuba_renderer", "instance_ids": "sim.render.mitsuba_renderer",
-    "MujocoRenderer": "sim.render.mujoco_renderer", "describe_world": "sim.render.scene",
+    "describe_world": "sim.render.scene",
     "build_scene_dict": "sim.render.scene",
 }
 
@@ -70,18 +72,3 @@ def __getattr__(name: str) -> Any:  # lazy: importing sim.render does not import
 
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'sim.render' has no attribute {name!r}")
-
-
-def make_renderer(name: str, world: Any, settings: PbrSettings | None = None, **kwargs: Any) -> Renderer:
-    """The renderer ``name`` (``mujoco`` | ``pbr``) bound to ``world``; ``settings`` apply to ``pbr``."""
-    from torm.errors import UnknownNameError
-
-    if name == "mujoco":
-        from sim.render.mujoco_renderer import MujocoRenderer
-
-        return MujocoRenderer(world, **kwargs)
-    if name == "pbr":
-        from sim.render.mitsuba_renderer import MitsubaRenderer
-
-        return MitsubaRenderer(world, settings, **kwargs)
-    raise UnknownNameError("capture.renderer", name, ("mujoco", "pbr"))

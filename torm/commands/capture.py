@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
 
     rgb_renderer = None
     if args.renderer == "pbr":
-        from sim.render import make_renderer
+        from sim.renderers import make_renderer
         from torm.capture.render_settings import PbrSettings
 
         rgb_renderer = make_renderer("pbr", world, PbrSettings() if args.spp is None else PbrSettings(spp=args.spp))

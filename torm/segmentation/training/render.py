@@ -120,7 +120,8 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
     (the masks the pipeline's captures carry) for a plain look, the renderer's id pass when ``look`` adds clutter.
     No render cache: dataset shards are the cache. Returns (rgb, mask, what the look drew)."""
     try:
-        from sim.render import PbrSettings, RenderCamera, make_renderer
+        from sim.render import PbrSettings, RenderCamera
+        from sim.renderers import make_renderer
     except ImportError as exc:
         raise ConfigError("renderer 'pbr' needs the physically based renderer in sim/render (branch i10r); "
                           f"it is not available here ({exc}); use renderer 'mujoco'") from exc

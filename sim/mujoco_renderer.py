@@ -7,10 +7,12 @@ mapped through ``geom_to_instance``. One :class:`sim.camera_rig.SimCameraRig` (o
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import mujoco
 
+from sim.camera_rig import CameraRigConfig, SimCameraRig
 from sim.render.base import RenderCamera, RenderedView
 
 
@@ -30,10 +32,6 @@ class MujocoRenderer:
         self._rigs: dict[tuple[int, int], Any] = {}
 
     def _rig(self, width: int, height: int) -> Any:
-        from dataclasses import replace
-
-        from sim.camera_rig import CameraRigConfig, SimCameraRig
-
         rig = self._rigs.get((width, height))
         if rig is None:
             base = self.rig_config or CameraRigConfig()
