@@ -133,7 +133,7 @@ class Scene:
 
 def get_scene(scenario: str, seed: int, n_views: int, scale: float, cache: Path = CAPTURE_CACHE) -> Scene:
     """Build the world (for GT meshes) and load the cached capture, rendering and saving it on first use."""
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
 
     world = build_world(scenario, seed)

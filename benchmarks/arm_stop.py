@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 from _common import RESULTS, context  # noqa: E402
 
-from sim.robot_config import load_robot_config  # noqa: E402
+from sim.robots.config import load_robot_config  # noqa: E402
 from torm.errors import HardwareError  # noqa: E402
 from torm.execution.trajectory import min_jerk_segment  # noqa: E402
 from torm.hardware.rosbridge import InovoArm, MujocoKinematics  # noqa: E402

@@ -29,8 +29,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 import torm  # noqa: E402
-from sim.camera_rig import CHANNELS, CameraRigConfig, SimCameraRig  # noqa: E402
-from sim.occlusion import occlusion_ratio  # noqa: E402
+from sim.cameras.occlusion import occlusion_ratio  # noqa: E402
+from sim.cameras.rig import CHANNELS, CameraRigConfig, SimCameraRig  # noqa: E402
 from torm.bench.results import cpu_model  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -123,8 +123,8 @@ def write_markdown(result: dict, path: Path) -> None:
         cells = [f"{r['per_channel'][k]['views_per_s']:.1f}" for k in CHANNEL_SETS]
         lines.append(f"| {r['width']}x{r['height']} | " + " | ".join(cells)
                      + f" | {r['occlusion_ratio']:.2f} | {r['occlusion_s']:.2f} |")
-    lines += ["", "OCC = share of views with an object partly occluded by another (sim/occlusion.py); its time is "
-              "one solo mask render per object and view on top of the capture."]
+    lines += ["", "OCC = share of views with an object partly occluded by another (sim/cameras/occlusion.py); its "
+              "time is one solo mask render per object and view on top of the capture."]
     lines += ["", "Versions: " + ", ".join(f"{k} {v}" for k, v in result["versions"].items()), ""]
     path.write_text("\n".join(lines))
 

@@ -59,7 +59,7 @@ STEREO_TILT = {"0-22.5": {"missing": None, "see_through": 0.955, "near_surface":
 
 def scene_stats(scenario: str, seed: int, model_name: str, n_views: int, scale: float) -> dict[str, Any]:
     """Counts per (bin, class) over the glass pixels of ``n_views`` layout views, plus timings and errors."""
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.depth import make_depth_model
     from sim.depth.geometry import incidence_deg
     from sim.world import build_world

@@ -81,8 +81,8 @@ def _capture_job(args: tuple[str, int, int, int, float, str]) -> dict[str, Any]:
     timing = Path(folder) / "render_timing.json"
     if timing.exists():
         return json.loads(timing.read_text())
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
-    from sim.renderers import make_renderer
+    from sim.cameras.renderers import make_renderer
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
     from torm.capture.io import save_capture
     from torm.capture.render_settings import PbrSettings

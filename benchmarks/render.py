@@ -177,12 +177,12 @@ def main(argv: list[str] | None = None) -> int:
     bc.setup(a.threads)
     if a.cache is not None:
         os.environ["TORM_CACHE_DIR"] = str(a.cache)
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.renderers import make_renderer
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.render import MitsubaRenderer, PbrSettings, RenderCache, RenderCamera, cache_key, cache_root
     from sim.render.mitsuba_env import find_libllvm
     from sim.render.mitsuba_renderer import auto_exposure_gain, denoise, render_linear, tone_map
     from sim.render.scene import load_scene
-    from sim.renderers import make_renderer
     from sim.world import build_world
 
     ctx = bc.context(vars(a) | {"out": str(a.out), "cache": str(a.cache) if a.cache else None})
@@ -342,7 +342,7 @@ def _mean(xs: list) -> float | None:
 
 
 def _mujoco_rgb(world: Any, cfg: Any, T: np.ndarray) -> np.ndarray:
-    from sim.camera_rig import SimCameraRig
+    from sim.cameras.rig import SimCameraRig
 
     with SimCameraRig.from_world(world, cfg) as rig:
         return rig.render_arrays(T, channels=["rgb"])["rgb"]

@@ -59,7 +59,7 @@ def export(folder: Path) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import trimesh
 
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
     from sim.render.lighting import sample_lighting
     from sim.render.scene import describe_world
     from sim.render.textures import table_texture
@@ -246,7 +246,7 @@ def report(folder: Path) -> None:
     import _common as bc
 
     bc.setup(2)
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
     from sim.render import MitsubaRenderer, PbrSettings, RenderCamera
     from sim.render.mitsuba_renderer import denoise, render_linear, tone_map
     from sim.world import build_world

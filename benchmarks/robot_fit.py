@@ -3,7 +3,7 @@
 Per robot (``inovo_2f85``: pre-combined MJCF at the origin; ``mini6_lg90``: arm + linkage gripper composed from
 two files, base moved by ``base_pose``):
 
-* reach: the start-up reach check's share of the workspace box (``sim/robot_reach.py``);
+* reach: the start-up reach check's share of the workspace box (``sim/robots/reach.py``);
 * grip force: requested vs produced pad force on fixed blocks (``measure_gripper.check_force``: MuJoCo contact
   forces, requests 20-235 N at widths between the force map's grid points);
 * TCP offset: how far the pads move along the approach between the widest and the narrowest gap;
@@ -60,9 +60,9 @@ def robot_static(name: str) -> dict[str, Any]:
     import numpy as np
 
     from sim.backend import SimBackend
-    from sim.robot_config import load_robot_config
-    from sim.robot_reach import reach_report
+    from sim.robots.config import load_robot_config
     from sim.robots.measure_gripper import check_force
+    from sim.robots.reach import reach_report
     from sim.world import WORKSPACE_BOUNDS, build_world
 
     cfg = load_robot_config(name)
@@ -97,7 +97,7 @@ def trial(name: str, scenario: str, gravcomp: str) -> dict[str, Any]:
     if gravcomp != "yaml":  # override the robot.yaml: a copy with absolute paths under runs/robot_fit/
         import yaml
 
-        from sim.robot_config import robot_yaml_path
+        from sim.robots.config import robot_yaml_path
 
         src = robot_yaml_path(name)
         data = yaml.safe_load(src.read_text())
@@ -180,7 +180,7 @@ def main() -> None:
             done[key] = robot_static(name)
             _append(done[key])
         static.append(done[key])
-        from sim.robot_config import load_robot_config
+        from sim.robots.config import load_robot_config
 
         modes = ["yaml"] + (["false"] if load_robot_config(name).gravcomp else [])
         for mode in modes:

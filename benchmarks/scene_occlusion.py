@@ -1,6 +1,6 @@
 """Scene occlusion benchmark: the paper's OCC of every scenario over the trials' own layouts and camera trajectory.
 
-OCC (the paper's definition, ``sim/occlusion.py``): the share of views in which at least one object is partly
+OCC (the paper's definition, ``sim/cameras/occlusion.py``): the share of views in which at least one object is partly
 hidden by another. Per scenario it is averaged over the layouts of trials 0..n-1 (the seeds ``torm bench`` draws:
 :func:`torm.bench.spec.trial_seed`; the paper: "the average occlusion ratio over 10 trials"), with the trial's capture
 settings (``TrialConfig().capture``: 50 views on the 0.5 m upper-hemisphere band at 20-80 deg elevation, the D455's
@@ -34,8 +34,8 @@ def measure(scenario: str, suite: str, trials: int, n_views: int, scale: float) 
     """OCC per trial layout of ``scenario`` and the nearest-neighbour gaps (object widths) of those layouts."""
     import numpy as np
 
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
-    from sim.occlusion import occlusion_ratio
+    from sim.cameras.occlusion import occlusion_ratio
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.scenes.objects import get_object
     from sim.scenes.placement import pairwise_gaps
     from sim.scenes.scenario import get_scenario
@@ -88,9 +88,9 @@ def markdown(doc: dict[str, Any]) -> str:
     stated = [r for r in doc["rows"] if r["within_tolerance"] is not None]
     return (
         "# Scene occlusion (the paper's OCC) per scenario\n\n"
-        f"OCC = share of views in which at least one object is partly hidden by another (`sim/occlusion.py`: more "
-        f"than 2 % of its silhouette and at least 4 px), over the layouts of trials 0..{a['trials'] - 1} (the seeds "
-        f"`torm bench` draws), {a['views']} views at scale {a['scale']} (the trial's capture: the 0.5 m "
+        "OCC = share of views in which at least one object is partly hidden by another (`sim/cameras/occlusion.py`: "
+        f"more than 2 % of its silhouette and at least 4 px), over the layouts of trials 0..{a['trials'] - 1} (the "
+        f"seeds `torm bench` draws), {a['views']} views at scale {a['scale']} (the trial's capture: the 0.5 m "
         "upper-hemisphere band, 20-80 deg elevation, 91.5 deg field of view), simulator masks. Paper: Table III "
         "(the average over 10 real trials); Syn1-12's figures are printed only in Fig. 4's image, so none is stated. "
         "Gap: the scenario's own gap range in object widths (`Scenario.gap`, chosen so the OCC over this trajectory "

@@ -57,8 +57,8 @@ def _capture_job(args: tuple[str, int, int, float, int, str, str]) -> str:
     scenario, seed, views, scale, spp, folder, renderer = args
     if (Path(folder) / "transforms.json").exists():
         return folder
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
-    from sim.renderers import make_renderer
+    from sim.cameras.renderers import make_renderer
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
     from torm.capture.io import save_capture
     from torm.capture.render_settings import PbrSettings

@@ -11,7 +11,7 @@ simulator and on the real robot. Units: m, rad, s, N; world = the table frame, z
 * :class:`SimGripper` maps an opening width to the command with the robot config's measured map (either
   direction: 0 = open or 255 = open), ramps the command at the requested speed, commands the requested *pad
   force* in newtons (clipped to 20-235 N, the 2F-85's range, and to what the gripper can produce) through the
-  gripper's measured force map (:mod:`sim.force_map`: pad force -> actuator force limit at the current width)
+  gripper's measured force map (:mod:`sim.robots.force_map`: pad force -> actuator force limit at the current width)
   and waits until the fingers stop; an object is detected when the fingers stall short of the commanded width
   (like the Robotiq's ``gOBJ``). :meth:`SimGripper.grip_report` gives the requested, applied and measured pad
   force (MuJoCo contact forces) for the trial record.
@@ -20,7 +20,7 @@ simulator and on the real robot. Units: m, rad, s, N; world = the table frame, z
 * :meth:`SimBackend.add_step_callback` registers ``fn(t)`` called every control tick (simulated time ``t``
   in s), e.g. to sample object and TCP positions for the success test.
 * At start-up the backend checks which share of the world's workspace box the arm reaches
-  (:mod:`sim.robot_reach`) and refuses an arm that reaches too little, naming ``base_pose``.
+  (:mod:`sim.robots.reach`) and refuses an arm that reaches too little, naming ``base_pose``.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import mujoco
 import numpy as np
 
-from sim.force_map import measured_pad_force, pad_distance
+from sim.robots.force_map import measured_pad_force, pad_distance
 from torm.backend.calibration import Calibration
 from torm.backend.protocol import ArmState, GripperState
 from torm.backend.safety import SafeArm, SafetyLimits
@@ -42,7 +42,7 @@ from torm.execution.errors import PhysicsError
 from torm.types import TriMesh
 
 if TYPE_CHECKING:
-    from sim.robot_config import RobotConfig
+    from sim.robots.config import RobotConfig
     from sim.world import World
     from torm.types import Capture
 
@@ -68,7 +68,7 @@ class SimBackendConfig:
         object_detect_tolerance: gap beyond the commanded width at which an object counts as held (m).
         max_contact_force: largest contact constraint force before the simulation counts as exploded (N).
         max_object_speed: largest free-body linear speed before the simulation counts as exploded (m/s).
-        reach_check: check at start-up which share of the workspace the arm reaches (:mod:`sim.robot_reach`).
+        reach_check: check at start-up which share of the workspace the arm reaches (:mod:`sim.robots.reach`).
         reach_min_share: refuse the robot (SceneError naming ``base_pose``) when it reaches less than this share;
             None = the robot config's ``reach_min_share`` (robot YAML, default 0.75).
     """
@@ -288,7 +288,7 @@ class SimGripper:
         self._requested_n = self.force_n
         self._setting = float(self._forcerange0[1])
         self._warned: set[str] = set()
-        from sim.robot_ids import force_map_problem
+        from sim.robots.ids import force_map_problem
 
         why = force_map_problem(m, sim.rcfg, ids)
         if why:  # a config built in Python without load_robot_config's check
@@ -450,7 +450,7 @@ class SimBackend:
     Args:
         world: a built world with a robot (``build_world(..., robot="inovo_2f85")``).
         config: control, settling, gripper and safety settings.
-        camera_config: optional ``sim.camera_rig.CameraRigConfig`` for :meth:`capture`.
+        camera_config: optional ``sim.cameras.rig.CameraRigConfig`` for :meth:`capture`.
         depth_model: optional :class:`sim.depth.DepthModel` making the captures' sensor depth (default ``ideal``).
         depth_seed: seed of the depth model's noise (default: the world's seed).
         renderer: who renders the capture's RGB images: ``mujoco`` (the rig's rasteriser) or ``pbr`` (Mitsuba 3
@@ -465,7 +465,7 @@ class SimBackend:
         gripper, clock, ground_truth: see the classes above.
         robot_config: the robot's RobotConfig; ``robot_model`` a robot-only MjModel (for IK / FK), its base at
             ``base_pose`` like in the world.
-        reach: the start-up :class:`sim.robot_reach.ReachReport` (None when ``config.reach_check`` is off).
+        reach: the start-up :class:`sim.robots.reach.ReachReport` (None when ``config.reach_check`` is off).
 
     Raises:
         SceneError: when the arm reaches less than ``config.reach_min_share`` of the workspace (names ``base_pose``).
@@ -485,7 +485,7 @@ class SimBackend:
         self.robot_model = self.robot_config.robot_model()
         self.reach = None
         if self.config.reach_check:
-            from sim.robot_reach import require_reach
+            from sim.robots.reach import require_reach
 
             share = self.config.reach_min_share
             self.reach = require_reach(self.robot_config, world.workspace_bounds,
@@ -543,10 +543,10 @@ class SimBackend:
 
     def _get_rig(self) -> Any:
         if self._rig is None:
-            from sim.camera_rig import SimCameraRig
+            from sim.cameras.rig import SimCameraRig
 
             if self.renderer != "mujoco" and self._rgb_renderer is None:
-                from sim.renderers import make_renderer
+                from sim.cameras.renderers import make_renderer
 
                 self._rgb_renderer = make_renderer(self.renderer, self.world, self._render_settings)
             self._rig = SimCameraRig.from_world(self.world, self._camera_config, rgb_renderer=self._rgb_renderer,
@@ -554,7 +554,7 @@ class SimBackend:
         return self._rig
 
     def capture(self, n_views: int | None = None) -> Capture:
-        """Render a multi-view capture with :class:`sim.camera_rig.SimCameraRig` (robot hidden); RGB from
+        """Render a multi-view capture with :class:`sim.cameras.rig.SimCameraRig` (robot hidden); RGB from
         :attr:`renderer`.
 
         With a realism record, the views carry the *reported* poses and intrinsics (hand-eye error, per-view
@@ -642,7 +642,7 @@ class SimBackend:
     def occlusion_ratio(self, capture: Capture) -> float:
         """The paper's OCC of ``capture`` (taken by :meth:`capture` in the current state): share of views
         in which at least one object is partly hidden by another (0..1)."""
-        from sim.occlusion import occlusion_ratio
+        from sim.cameras.occlusion import occlusion_ratio
 
         if self._true_capture is not None and capture is self._true_capture[0]:
             capture = self._true_capture[1]  # measure OCC with the true cameras, not the reported ones

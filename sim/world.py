@@ -7,7 +7,7 @@ also collides), 1 robot visuals, 2 glass object visuals, 3 collision geoms, 4 op
 geoms are moved into group 1 (or kept in 3 when they collide and sit there) whatever group their MJCF uses,
 so the capture rig, which hides groups 1 and 3, never sees the robot.
 
-The robot (:func:`sim.robot_compose.robot_spec`) is the base spec the scene is added to, so it keeps its
+The robot (:func:`sim.robots.compose.robot_spec`) is the base spec the scene is added to, so it keeps its
 own ``<compiler>`` (angle units: add world elements with quaternions, never euler or joint ranges) and its
 own ``<option>`` (integrator, timestep, solver...); the scene only adds the glass-holding contact settings
 (elliptic cone, impratio 10, multiccd) where the robot leaves MuJoCo's defaults.
@@ -48,8 +48,8 @@ from torm.types import TriMesh
 
 if TYPE_CHECKING:
     from sim.realism import RealismRecord
-    from sim.robot_config import RobotConfig
-    from sim.robot_ids import RobotIds
+    from sim.robots.config import RobotConfig
+    from sim.robots.ids import RobotIds
 
 log = logging.getLogger(__name__)
 
@@ -366,9 +366,9 @@ def _new_spec(robot: str | Path | RobotConfig | None):
     if robot is None:
         return mujoco.MjSpec(), None, []
     try:
-        from sim.robot_config import RobotConfig, load_robot_config
+        from sim.robots.config import RobotConfig, load_robot_config
     except ImportError as exc:  # pragma: no cover - depends on the robot package being present
-        raise SceneError(f"robot {robot!r} requested but sim.robot_config is unavailable ({exc}); "
+        raise SceneError(f"robot {robot!r} requested but sim.robots.config is unavailable ({exc}); "
                          "pass robot=None for an object-only scene") from exc
     rcfg = robot if isinstance(robot, RobotConfig) else load_robot_config(robot, validate=False)
     spec = rcfg.robot_spec()

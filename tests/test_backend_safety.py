@@ -177,7 +177,7 @@ def test_lever_arms_bound_the_inovo_jacobian():
     """lever_arms_from_mujoco bounds every column of the TCP Jacobian over random configurations."""
     import mujoco
 
-    from sim.robot_config import load_robot_config
+    from sim.robots.config import load_robot_config
     from torm.backend.safety import lever_arms_from_mujoco
 
     rcfg = load_robot_config("inovo_2f85")

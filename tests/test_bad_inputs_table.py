@@ -238,8 +238,8 @@ def test_a_bad_command_line_is_a_usage_error_naming_the_input(tmp_path, capsys, 
 
 
 def test_a_transit_height_the_arm_cannot_reach_is_a_config_error_not_unreachable_objects():
-    from sim.robot_config import load_robot_config
-    from sim.robot_reach import check_transit_height
+    from sim.robots.config import load_robot_config
+    from sim.robots.reach import check_transit_height
 
     rcfg = load_robot_config("inovo_2f85")
     box = [[0.33, -0.22, 0.0], [0.77, 0.22, 0.3]]
@@ -250,7 +250,7 @@ def test_a_transit_height_the_arm_cannot_reach_is_a_config_error_not_unreachable
 
 
 def test_a_base_inside_the_workspace_box_is_named():
-    from sim.robot_reach import base_in_box
+    from sim.robots.reach import base_in_box
 
     box = [[0.33, -0.22, 0.0], [0.77, 0.22, 0.3]]
     assert base_in_box((0.0, 0.0, 0.0), box) == ""  # the Inovo cell: the base beside the box

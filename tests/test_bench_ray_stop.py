@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.robot_config import load_robot_config
+from sim.robots.config import load_robot_config
 from torm.bench import BenchConfig, run_benchmark
 from torm.bench.ray_engine import check_address
 from torm.bench.results import read_results

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.robot_config import load_robot_config
+from sim.robots.config import load_robot_config
 from torm.bench.results import read_manifest, read_results
 from torm.testing.fake_robotiq import FakeRobotiq, FakeRobotiqServer
 from torm.testing.fake_rosbridge import ACTION, FakeRosbridge, write_cell_yaml

@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.camera_rig import CameraRigConfig, SimCameraRig
-from sim.occlusion import occlusion_from_masks, occlusion_ratio
+from sim.cameras.occlusion import occlusion_from_masks, occlusion_ratio
+from sim.cameras.rig import CameraRigConfig, SimCameraRig
 from torm.geometry import look_at_cv
 
 NEAR = np.array([0.70, 0.0, 0.04])  # front box centre (m), 8 cm tall glass box

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.camera_rig import CameraRigConfig, SimCameraRig, hemisphere_poses, workspace_coverage
+from sim.cameras.rig import CameraRigConfig, SimCameraRig, hemisphere_poses, workspace_coverage
 from torm.capture.provider import ImageProvider
 from torm.errors import ConfigError
 from torm.geometry import look_at_cv

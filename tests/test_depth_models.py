@@ -132,7 +132,7 @@ def test_make_depth_model_rejects_bad_names_and_options():
 
 
 def test_rig_glass_pixels_mix_all_three_outcomes_and_repeat():
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
 
     world = build_world("rw3", 0)

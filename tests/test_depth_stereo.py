@@ -48,7 +48,7 @@ def test_registration_is_identity_for_the_same_camera():
 
 @pytest.fixture(scope="module")
 def rw1_rig():
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
 
     world = build_world("rw1", 0)

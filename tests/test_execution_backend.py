@@ -107,7 +107,7 @@ def test_exploding_contact_force_raises():
 
 
 def test_capture_through_the_backend_sees_the_glass():
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
 
     b = SimBackend(build_world("rw1", seed=0), camera_config=CameraRigConfig(scale=0.1, channels=("mask",)))
     try:

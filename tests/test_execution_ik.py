@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.robot_config import load_robot_config
+from sim.robots.config import load_robot_config
 from torm.errors import ExecutionError
 from torm.execution.ik import UnreachableError
 from torm.execution.pick import ToolFrame, free_direction, grasp_to_tcp, make_ik_solver, time_line

@@ -116,7 +116,7 @@ def test_unarmed_real_backend_activates_nothing_and_moves_no_finger(tmp_path):
     """make_real_backend with the gripper on a loopback Modbus server and the arm on the fake rosbridge."""
     from types import SimpleNamespace
 
-    from sim.robot_config import load_robot_config
+    from sim.robots.config import load_robot_config
     from torm.hardware import make_real_backend
     from torm.testing.fake_rosbridge import FakeRosbridge, write_cell_yaml
 

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from sim.robot_config import load_robot_config
+from sim.robots.config import load_robot_config
 from torm.backend.safety import SafetyError
 from torm.errors import HardwareError
 from torm.hardware.command_log import CommandLog
@@ -408,7 +408,7 @@ def test_capture_moves_the_wrist_camera_over_the_hemisphere(server):
     moves = {g["goal_id"]["id"].rsplit(".", 1)[0] for g in server.goals()}  # chunk ids are <trajectory>.<k>
     assert len(cap) == 2 and cap.metadata["view_indices"] == [1, 2] and len(moves) == len(cap)  # view 0: out of reach
     assert cap.table_height == 0.0 and cap.scenario == "real" and cap.workspace_bounds.shape == (2, 3)
-    from sim.camera_rig import hemisphere_poses
+    from sim.cameras.rig import hemisphere_poses
 
     wanted = hemisphere_poses(3, 0.5, (0.55, 0.0, 0.0), 20.0, 80.0)
     for v, i in zip(cap.views, cap.metadata["view_indices"], strict=True):

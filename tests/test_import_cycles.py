@@ -173,8 +173,8 @@ def test_the_circle_finder_finds_hand_built_circles():
 
 def test_function_level_imports_close_no_circle_but_the_known_one():
     graph = import_graph(function_level=True)
-    assert "sim.robot_compose" in graph["sim.robot_config"]  # imported inside a method: an edge in this graph
-    assert "sim.robot_compose" not in import_graph()["sim.robot_config"]  # ... and not in the module-level one
+    assert "sim.robots.compose" in graph["sim.robots.config"]  # imported inside a method: an edge in this graph
+    assert "sim.robots.compose" not in import_graph()["sim.robots.config"]  # ... and not in the module-level one
     assert "torm.trial_config" in graph["torm.loop"] and "torm.pipeline" not in graph["torm.loop"]
     circles = set(strongly_connected(graph))
     new = [sorted(c) for c in circles - set(KNOWN_CIRCLES)]

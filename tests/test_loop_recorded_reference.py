@@ -96,7 +96,7 @@ def test_torm_capture_empty_records_the_pass_a_trial_renders_for_itself(tmp_path
 def test_torm_capture_on_the_real_backend_saves_the_trial_poses_and_disables_the_arm(tmp_path, capsys, monkeypatch):
     """The real code path on the fake rosbridge controller and a fake Modbus gripper; the camera reads a fixed
     image at the pose the arm reports (no RealSense here)."""
-    from sim.robot_config import load_robot_config
+    from sim.robots.config import load_robot_config
     from torm.capture.io import load_capture
     from torm.cli import main
     from torm.hardware.backend import RealBackend

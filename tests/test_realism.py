@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sim.backend import SimBackend
-from sim.camera_rig import CameraRigConfig
+from sim.cameras.rig import CameraRigConfig
 from sim.realism import (
     FACTORS,
     MEASURED,
@@ -128,7 +128,7 @@ def test_ideal_record_builds_the_same_world():
 
 
 def test_reported_cameras_carry_the_calibration_error_and_the_images_do_not():
-    from sim.camera_rig import SimCameraRig
+    from sim.cameras.rig import SimCameraRig
 
     w = build_world("rw1", seed=0, robot=None)
     with SimCameraRig.from_world(w, CameraRigConfig(n_views=4, scale=0.2)) as rig:

@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim.camera_rig import CameraRigConfig, SimCameraRig
+from sim.cameras.renderers import make_renderer
+from sim.cameras.rig import CameraRigConfig, SimCameraRig
 from sim.render import MitsubaRenderer, PbrSettings, RenderCamera
 from sim.render.mitsuba_renderer import render_linear, tone_map
 from sim.render.scene import describe_world, load_scene
-from sim.renderers import make_renderer
 from sim.world import build_world
 from tests.render_helpers import camera, tiny_world
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.force_map import ForceMap
-from sim.robot_compose import merge_options
-from sim.robot_config import BasePose, load_robot_config
+from sim.robots.compose import merge_options
+from sim.robots.config import BasePose, load_robot_config
+from sim.robots.force_map import ForceMap
 from sim.world import build_world
 from torm.errors import ConfigError, SceneError
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.robot_config import ROBOTS_DIR, available_robots, load_robot_config
+from sim.robots.config import ROBOTS_DIR, available_robots, load_robot_config
 from torm.errors import ConfigError, SceneError, UnknownNameError
 
 YAML = ROBOTS_DIR / "inovo_2f85" / "robot.yaml"

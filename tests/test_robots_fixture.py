@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sim.backend import SimBackend
-from sim.robot_config import ROBOTS_DIR, load_robot_config
+from sim.robots.config import ROBOTS_DIR, load_robot_config
 from sim.robots.measure_gripper import check_force, measure_tcp_offset
 from sim.world import GROUP_COLLISION, GROUP_ROBOT, build_world
 from torm.errors import SceneError
@@ -75,7 +75,7 @@ def test_composition_keeps_units_options_integrator_and_hides_the_robot(cfg, bac
 
 def test_robot_is_absent_from_the_capture_images(backend):
     """Depth straight down onto the arm base: the table (1.5 m away), not the robot, unless it is made visible."""
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
 
     w = backend.world
     base = np.asarray(w.robot_config.base_pose.position)

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.robot_config import RobotConfig, load_robot_config
+from sim.robots.config import RobotConfig, load_robot_config
 
 SCENE = """
 <mujoco model="glass grasp test">

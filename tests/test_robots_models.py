@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.robot_config import ROBOTS_DIR, available_robots, load_robot_config
+from sim.robots.config import ROBOTS_DIR, available_robots, load_robot_config
 from sim.robots.inovo_2f85.build_model import OUT_XML, build_xml
 from sim.robots.measure_gripper import measure_command_to_width, pad_gap
 

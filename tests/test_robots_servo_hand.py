@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.robot_config import load_robot_config
+from sim.robots.config import load_robot_config
 from torm.errors import ConfigError, SceneError
 
 HAND = Path(__file__).resolve().parent / "data" / "robots" / "servo_hand" / "robot.yaml"

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.robot_config import load_robot_config
-from sim.robot_reach import reach_report, require_reach
+from sim.robots.config import load_robot_config
+from sim.robots.reach import reach_report, require_reach
 from sim.world import WORKSPACE_BOUNDS
 from torm.errors import ConfigError, SceneError
 from torm.execution.ik import IKSolver

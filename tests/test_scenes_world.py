@@ -97,7 +97,7 @@ def test_rejected_layouts_raise_scene_error():
 
 
 def test_world_with_robot():
-    from sim.robot_config import load_robot_config
+    from sim.robots.config import load_robot_config
 
     w = build_world("rw7", seed=2)
     rcfg = load_robot_config("inovo_2f85", validate=False)

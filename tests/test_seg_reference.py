@@ -149,7 +149,7 @@ def test_reference_views_survive_a_save_and_load_and_must_match_the_view_size(tm
 
 
 def test_the_simulated_reference_pass_hides_the_objects_and_only_them():
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
     from torm.runtime import ensure_headless_gl
 

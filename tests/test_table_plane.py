@@ -132,7 +132,7 @@ def test_capture_without_depth_or_with_too_few_points_raises():
 def test_simulated_rw3_capture_matches_the_true_table_height():
     pytest.importorskip("mujoco")
     from sim.backend import SimBackend
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
     from sim.world import build_world
 
     backend = SimBackend(build_world("rw3", seed=0),
@@ -154,7 +154,7 @@ def test_the_loop_fits_the_table_without_the_captures_masks():
     within 2 mm of the truth (rw7: a dense scene, the most object pixels of the rw suite)."""
     pytest.importorskip("mujoco")
     from sim.backend import SimBackend
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
     from sim.world import build_world
     from torm import config as cfgmod
     from torm.loop import table_height

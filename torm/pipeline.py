@@ -156,7 +156,7 @@ def resolve_render_scale(config: TrialConfig) -> float:
     seg = config.segmentation
     if config.method != "torm" or seg.segmenter != "learned":
         return 1.0
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
 
     width = learned_input_width(config)
     capture_w = CameraRigConfig(scale=config.capture.scale).image_width
@@ -168,7 +168,7 @@ def make_backend(config: TrialConfig) -> Any:
     if config.backend == "sim":
         ensure_headless_gl()
         from sim.backend import SimBackend
-        from sim.camera_rig import CameraRigConfig
+        from sim.cameras.rig import CameraRigConfig
         from sim.depth import make_depth_model
         from sim.world import build_world
 
@@ -235,7 +235,7 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
         check_grip_force(config.pick.grip_force, backend.gripper)  # a configured force the gripper cannot command
         world = getattr(backend, "world", None)
         if getattr(world, "robot_config", None) is not None:  # simulation: the arm and the box are known
-            from sim.robot_reach import check_transit_height
+            from sim.robots.reach import check_transit_height
 
             check_transit_height(world.robot_config, world.workspace_bounds, config.pick.transit_height,
                                  world.table_height)

@@ -4,9 +4,9 @@ One interface (:class:`Renderer`): a renderer is bound to a world and renders it
 where physics put them) for a list of :class:`RenderCamera` (``K`` (3, 3) px, ``T_world_cam`` (4, 4) OpenCV axes
 in metres, ``width``, ``height``), returning one :class:`RenderedView` per camera: ``rgb`` (H, W, 3) uint8 and
 ``instance`` (H, W) int32 (0 background, k = object k). ``capture.renderer`` picks one for the camera rig
-(:func:`sim.renderers.make_renderer`):
+(:func:`sim.cameras.renderers.make_renderer`):
 
-- ``mujoco`` (:class:`sim.mujoco_renderer.MujocoRenderer`, built on the camera rig, so it lives above this
+- ``mujoco`` (:class:`sim.cameras.mujoco_renderer.MujocoRenderer`, built on the camera rig, so it lives above this
   package): MuJoCo's OpenGL rasteriser (glass as grey alpha blending).
 - ``pbr`` (:class:`MitsubaRenderer`): Mitsuba 3 path tracing on the CPU (``llvm_ad_rgb`` with Debian's
   ``libllvm19``, ``scalar_rgb`` fallback): glass as a smooth dielectric (IOR per object), diffuse opaque

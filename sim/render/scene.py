@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 
 #: Bump when the scene builder changes what it renders (part of every cache key).
 SCENE_BUILDER_VERSION = 1
-#: Geom groups the rig renders (environment, glass, opaque objects); see sim/camera_rig.py.
+#: Geom groups the rig renders (environment, glass, opaque objects); see sim/cameras/rig.py.
 RENDERED_GROUPS = (0, 2, 4)
 GROUP_GLASS = 2
 #: Index of refraction of glass when the object names none (soda-lime glass; the issue's value).

@@ -18,7 +18,7 @@ held at ``arm.home`` (its joints reset every step, so neither arm sag nor servo 
   measured TCP offset. For each setting ``s`` the gripper actuator's force range is set to ``(-s, s)``, the
   gripper opens to 10 mm more than the block, commands closed and settles; the pad force is each finger's summed
   normal contact force on the block (``mj_contactForce``), averaged over the fingers
-  (:func:`sim.force_map.measured_pad_force`). ``max_force`` is the same with the force limit removed. Settings
+  (:func:`sim.robots.force_map.measured_pad_force`). ``max_force`` is the same with the force limit removed. Settings
   default to a range scaled so the pad force spans about 10-300 N (from one probe at the MJCF's own force limit).
 """
 
@@ -33,8 +33,8 @@ import mujoco
 import numpy as np
 import yaml
 
-from sim.force_map import ForceMap, measured_pad_force, pad_distance
-from sim.robot_config import RobotConfig, load_robot_config
+from sim.robots.config import RobotConfig, load_robot_config
+from sim.robots.force_map import ForceMap, measured_pad_force, pad_distance
 
 DEFAULT_COMMANDS = (0, 32, 64, 96, 128, 160, 192, 224, 255)
 #: Pad forces (N) the default settings aim to span (the 2F-85's 20-235 N with margin on both sides).

@@ -1,6 +1,6 @@
 """Image providers: anything that returns a multi-view :class:`~torm.types.Capture` of the workspace.
 
-Implementations: :class:`RecordedProvider` (a capture folder on disk), ``sim.camera_rig.SimCameraRig``
+Implementations: :class:`RecordedProvider` (a capture folder on disk), ``sim.cameras.rig.SimCameraRig``
 (MuJoCo renders) and the real-camera provider of ``torm.hardware``. The pipeline only sees this
 protocol, so the image source can be swapped without touching it.
 """

@@ -43,7 +43,7 @@ def _flange_fk(robot: str):
     import mujoco
     import numpy as np
 
-    from sim.robot_config import load_robot_config
+    from sim.robots.config import load_robot_config
 
     rcfg = load_robot_config(robot)
     model = rcfg.robot_model()  # composed like in the world, base at base_pose

@@ -17,7 +17,7 @@ cleared by hand, with ``--empty`` to say so, to record the reference pass of a r
     torm capture --backend real --hardware-config hw.yaml --arm-robot --views 50 --empty --out runs/cell_empty
 
 Prints a JSON summary (folder, image size, intrinsics, objects, occlusion ratio, timings) on stdout.
-The rig config (``sim.camera_rig.CameraRigConfig``; ``torm config show capture`` lists its keys) can be
+The rig config (``sim.cameras.rig.CameraRigConfig``; ``torm config show capture`` lists its keys) can be
 given as YAML with ``--config`` and ``--set key=value`` overrides; ``--views/--width/--height/--scale``
 override it.
 """
@@ -88,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
     from torm.runtime import ensure_headless_gl
 
     ensure_headless_gl()
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
-    from sim.occlusion import occlusion_ratio
+    from sim.cameras.occlusion import occlusion_ratio
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
     from torm import config as cfgmod
     from torm.capture.io import save_capture
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
 
     rgb_renderer = None
     if args.renderer == "pbr":
-        from sim.renderers import make_renderer
+        from sim.cameras.renderers import make_renderer
         from torm.capture.render_settings import PbrSettings
 
         rgb_renderer = make_renderer("pbr", world, PbrSettings() if args.spp is None else PbrSettings(spp=args.spp))
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         if args.empty:
             from datetime import datetime, timezone
 
-            from sim.reference_pass import objects_hidden
+            from sim.cameras.reference_pass import objects_hidden
 
             with objects_hidden(world):
                 cap = rig.capture(progress=args.progress)

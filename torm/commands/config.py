@@ -31,7 +31,7 @@ from torm.errors import UnknownNameError
 CONFIGS: dict[str, tuple[str, str]] = {
     "trial": ("torm.pipeline:TrialConfig", "torm trial, and every trial of torm bench (--set)"),
     "reconstruct": ("torm.reconstruction.api:ReconstructionConfig", "torm reconstruct; trial key 'reconstruction'"),
-    "capture": ("sim.camera_rig:CameraRigConfig", "torm capture (the simulated camera rig)"),
+    "capture": ("sim.cameras.rig:CameraRigConfig", "torm capture (the simulated camera rig)"),
     "bench": ("torm.bench.spec:BenchConfig", "torm bench (its flags set these)"),
     "train-segmenter": ("torm.segmentation.training.run:SegTrainingSpec", "torm train-segmenter (data + train)"),
     "hardware": ("torm.hardware.config:HardwareConfig", "--hardware-config of torm trial/bench --backend real"),

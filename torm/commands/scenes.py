@@ -119,7 +119,7 @@ def run_show(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
     from torm.resources import TRIAL_BASE_BYTES, capture_bytes, check_fits
     from torm.viz import instance_colors

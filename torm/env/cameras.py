@@ -1,6 +1,6 @@
 """Small RGB / depth cameras for the gymnasium envs: a fixed overview camera and a wrist-like camera.
 
-Unlike the capture rig (:mod:`sim.camera_rig`, which hides the robot), these cameras show the robot
+Unlike the capture rig (:mod:`sim.cameras.rig`, which hides the robot), these cameras show the robot
 (geom groups 0 environment, 1 robot, 2 glass, 4 opaque; collision group 3 hidden) because a policy
 needs to see its gripper. Frames: world = robot base frame, z up, metres; camera poses ``T_world_cam``
 (4, 4) in OpenCV axes (x right, y down, z forward). Images are (H, W, 3) uint8 RGB; depth is (H, W)

@@ -241,7 +241,7 @@ class TormPickEnv(gym.Env):
             raise UnknownNameError("render_mode", render_mode, self.metadata["render_modes"])
         self.config = cfg = with_options(PickEnvConfig, config, options)
         self.render_mode = render_mode
-        from sim.robot_config import load_robot_config
+        from sim.robots.config import load_robot_config
 
         self._rcfg = load_robot_config(cfg.robot, validate=False)
         #: physical size of one unit of each normalised action component (m, m, m, rad, rad, rad, grip)

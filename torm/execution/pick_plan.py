@@ -81,7 +81,7 @@ class ToolFrame:
 
     @classmethod
     def from_robot_config(cls, robot_config: Any) -> ToolFrame:
-        """From a ``sim.robot_config.RobotConfig`` (duck-typed: ``gripper.geometry``, optional
+        """From a ``sim.robots.config.RobotConfig`` (duck-typed: ``gripper.geometry``, optional
         ``gripper.tcp_offset``)."""
         g = robot_config.gripper.geometry
         table = tuple((float(w), float(o)) for w, o in getattr(robot_config.gripper, "tcp_offset", ()) or ())
@@ -234,7 +234,7 @@ def _check_box(poses: dict[str, np.ndarray], box: tuple[np.ndarray, np.ndarray] 
 
 def _solve(ik: IKSolver, T: np.ndarray, q_seed: np.ndarray, what: str) -> np.ndarray:
     """IK for a free-move target (:meth:`IKSolver.solve_free`: seeded, polished, then random restarts; the same
-    solve the start-up reach check uses, :mod:`sim.robot_reach`)."""
+    solve the start-up reach check uses, :mod:`sim.robots.reach`)."""
     res = ik.solve_free(T, q_seed)
     if not res.converged:
         raise UnreachableError(f"{what} at {T[:3, 3].round(4).tolist()} m is unreachable: IK residual "

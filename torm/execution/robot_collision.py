@@ -49,7 +49,7 @@ class RobotCollisionChecker:
     @classmethod
     def from_robot_config(cls, robot_config: Any, table_height: float | None = 0.0,
                           tolerance: float = 1e-3) -> RobotCollisionChecker:
-        """From a ``sim.robot_config.RobotConfig`` (duck-typed: ``robot_spec()`` or ``mjcf``, ``arm.joints``)."""
+        """From a ``sim.robots.config.RobotConfig`` (duck-typed: ``robot_spec()`` or ``mjcf``, ``arm.joints``)."""
         from torm.execution.robot_model import robot_spec_of
 
         return cls(robot_spec_of(robot_config), tuple(robot_config.arm.joints), table_height, tolerance)

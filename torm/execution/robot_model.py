@@ -1,6 +1,6 @@
 """The robot-only MuJoCo model of a robot config, for IK, FK and plan-time collision checks.
 
-Duck-typed so ``torm`` does not import ``sim``: a config with ``robot_spec()`` (``sim.robot_config.RobotConfig``:
+Duck-typed so ``torm`` does not import ``sim``: a config with ``robot_spec()`` (``sim.robots.config.RobotConfig``:
 arm + gripper composed, base at its ``base_pose`` in the world) is asked for it; a config with only an ``mjcf``
 path is loaded from that file (base at the world origin). Frames: world, metres, radians.
 """

@@ -7,7 +7,7 @@ TCP box and ``speed_scale``), ``gripper``, ``clock`` (wall time), ``ground_truth
 ``robot_config``, :meth:`capture` and :meth:`close`.
 
 Capture: the wrist camera is moved through camera poses on the hemisphere band around the workspace
-centre (the simulator's Fibonacci layout, :func:`sim.camera_rig.hemisphere_poses`); each pose becomes a
+centre (the simulator's Fibonacci layout, :func:`sim.cameras.rig.hemisphere_poses`); each pose becomes a
 flange target ``T_world_cam @ inv(T_flange_cam)`` solved with :class:`torm.execution.ik.IKSolver` on the
 robot model's flange site; unreachable poses (IK residual, joint limits, flange below
 ``min_flange_height``) are skipped with a log line; each move is a rest-to-rest minimum-jerk joint
@@ -211,7 +211,7 @@ class RealBackend:
 
     def capture_joint_targets(self, n_views: int, q_start: np.ndarray) -> list[tuple[int, np.ndarray]]:
         """[(view index, joints (n,) rad)] reaching the hemisphere camera poses; unreachable ones skipped (logged)."""
-        from sim.camera_rig import hemisphere_poses
+        from sim.cameras.rig import hemisphere_poses
 
         c = self.hardware.capture
         poses = hemisphere_poses(n_views, c.radius, c.centre, c.elevation_min_deg, c.elevation_max_deg,
@@ -340,7 +340,7 @@ def make_robotiq_gripper(hw: HardwareConfig, command_log: CommandLog):
 def make_real_backend(trial_config: Any = None, hardware: HardwareConfig | None = None) -> RealBackend:
     """The backend for ``--backend real``: robot config from ``trial_config.robot``, hardware config from
     ``trial_config.hardware_config`` / $TORM_HARDWARE_CONFIG (see :func:`resolve_hardware_config`)."""
-    from sim.robot_config import load_robot_config
+    from sim.robots.config import load_robot_config
 
     hw = hardware or resolve_hardware_config(trial_config)
     rcfg = load_robot_config(getattr(trial_config, "robot", None) or "inovo_2f85")

@@ -55,7 +55,7 @@ class Needs:
             raise ConfigError("Needs: a method must read something (rgb, sensor_depth or masks)")
 
     def channels(self) -> tuple[str, ...]:
-        """The capture channels (``sim.camera_rig.CHANNELS`` names) these needs translate to."""
+        """The capture channels (``sim.cameras.rig.CHANNELS`` names) these needs translate to."""
         return tuple(c for c, on in (("rgb", self.rgb), ("sensor_depth", self.sensor_depth), ("mask", self.masks))
                      if on)
 

@@ -189,7 +189,7 @@ def random_poses(n: int, recipe: DataRecipe, rng: np.random.Generator) -> np.nda
 
 def rig_poses(n: int) -> np.ndarray:
     """The capture rig's default Fibonacci layout (radius 0.5 m, 20-80 deg): neighbouring views are close."""
-    from sim.camera_rig import CameraRigConfig
+    from sim.cameras.rig import CameraRigConfig
 
     return CameraRigConfig(n_views=n).poses()
 
@@ -365,7 +365,7 @@ def generate_reference_shard(recipe: DataRecipe, split: str, shard: int, root: P
     cameras, renderer and look, the objects hidden, independent render noise; each distractor is also removed with
     probability ``drop_distractors`` (things that arrive with the objects). Writes ``reference_rgb`` (N, H, W, 3)
     uint8 to :func:`reference_path`; raises when a rebuilt scene's cameras differ from the shard's."""
-    from sim.reference_pass import objects_hidden
+    from sim.cameras.reference_pass import objects_hidden
     from torm.segmentation.training.render import render_scene
 
     path = reference_path(root, split, shard)

@@ -99,7 +99,7 @@ def _randomise_mujoco(model: Any, rng: np.random.Generator) -> None:
 def render_mujoco(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int, height: int,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """MuJoCo RGB + instance masks of ``world`` at the given cameras, with randomised appearance."""
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
 
     _randomise_mujoco(world.model, rng)
     cfg = CameraRigConfig(n_views=len(T_world_cam_vx4x4), width=width, height=height, channels=("rgb", "mask"))
@@ -120,12 +120,12 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
     (the masks the pipeline's captures carry) for a plain look, the renderer's id pass when ``look`` adds clutter.
     No render cache: dataset shards are the cache. Returns (rgb, mask, what the look drew)."""
     try:
+        from sim.cameras.renderers import make_renderer
         from sim.render import PbrSettings, RenderCamera
-        from sim.renderers import make_renderer
     except ImportError as exc:
         raise ConfigError("renderer 'pbr' needs the physically based renderer in sim/render (branch i10r); "
                           f"it is not available here ({exc}); use renderer 'mujoco'") from exc
-    from sim.camera_rig import CameraRigConfig, SimCameraRig
+    from sim.cameras.rig import CameraRigConfig, SimCameraRig
 
     del rng  # the PBR scene is randomised from world.seed by the renderer itself
     look = look or SceneLook()
@@ -137,7 +137,7 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
         if look.n_distractors or look.room:
             import mitsuba as mi
 
-            from sim.reference_pass import HIDDEN_GROUP
+            from sim.cameras.reference_pass import HIDDEN_GROUP
             from sim.render.cache import cache_root
             from sim.render.scene import RENDERED_GROUPS, describe_world
             from torm.segmentation.training.clutter import clutter_entries

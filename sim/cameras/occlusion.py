@@ -1,7 +1,7 @@
 """The paper's occlusion ratio (OCC): the share of views in which at least one object is partly occluded by another.
 
 Per view and object k, the object's full silhouette is rendered with only its own visual geoms drawn
-(:meth:`sim.camera_rig.SimCameraRig.render_solo_masks`) and compared with the full-scene instance
+(:meth:`sim.cameras.rig.SimCameraRig.render_solo_masks`) and compared with the full-scene instance
 mask. The pixels of that solo silhouette that the full scene shows as *another object* (mask value
 j > 0, j != k) are the pixels lost to occlusion. Object k counts as partly occluded in the view when
 ``lost > tol * solo`` and ``lost >= min_pixels`` (tol = 2% and a few pixels by default, so
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.camera_rig import SimCameraRig
+from sim.cameras.rig import SimCameraRig
 from torm.errors import CaptureError
 from torm.types import Capture
 

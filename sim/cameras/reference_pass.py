@@ -2,7 +2,7 @@
 
 A real robot flies its capture path once before the objects are placed; in simulation the same world is rendered
 with the objects hidden. :func:`objects_hidden` moves every object's visual geoms into geom group
-:data:`HIDDEN_GROUP`, which neither the MuJoCo rig (:mod:`sim.camera_rig`, groups 0, 2, 4) nor the PBR scene builder
+:data:`HIDDEN_GROUP`, which neither the MuJoCo rig (:mod:`sim.cameras.rig`, groups 0, 2, 4) nor the PBR scene builder
 (:data:`sim.render.scene.RENDERED_GROUPS`) renders, and restores them on exit (also on an exception). Physics is
 untouched: the objects stay where they are, only their appearance is removed.
 """

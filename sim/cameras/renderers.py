@@ -1,10 +1,10 @@
 """Pick an image renderer of the simulated camera by name (``capture.renderer``).
 
-- ``mujoco``: :class:`sim.mujoco_renderer.MujocoRenderer`, MuJoCo's OpenGL rasteriser through the camera rig
+- ``mujoco``: :class:`sim.cameras.mujoco_renderer.MujocoRenderer`, MuJoCo's OpenGL rasteriser through the camera rig
   (glass as grey alpha blending);
 - ``pbr``: :class:`sim.render.MitsubaRenderer`, Mitsuba 3 path tracing (:mod:`sim.render`).
 
-It sits above both: the MuJoCo renderer is built on :mod:`sim.camera_rig`, which itself uses the
+It sits above both: the MuJoCo renderer is built on :mod:`sim.cameras.rig`, which itself uses the
 rendering package's camera types (:mod:`sim.render.base`), so neither package names the other's renderer.
 """
 
@@ -23,7 +23,7 @@ RENDERER_NAMES = ("mujoco", "pbr")
 def make_renderer(name: str, world: Any, settings: PbrSettings | None = None, **kwargs: Any) -> Renderer:
     """The renderer ``name`` (``mujoco`` | ``pbr``) bound to ``world``; ``settings`` apply to ``pbr``."""
     if name == "mujoco":
-        from sim.mujoco_renderer import MujocoRenderer
+        from sim.cameras.mujoco_renderer import MujocoRenderer
 
         return MujocoRenderer(world, **kwargs)
     if name == "pbr":

@@ -3,7 +3,7 @@
 A robot folder ``sim/robots/<name>/`` holds a ``robot.yaml`` that names everything the harness needs
 from its MJCF, so a third-party arm and gripper are plugged in with only a YAML (pass its path to
 :func:`load_robot_config`). The robot is described either by one pre-combined ``mjcf`` or by an arm file
-(``arm.mjcf``) and a gripper file (``gripper.mjcf``) that :mod:`sim.robot_compose` attaches at
+(``arm.mjcf``) and a gripper file (``gripper.mjcf``) that :mod:`sim.robots.compose` attaches at
 ``gripper.attach_site``; ``base_pose`` places the arm base in the world. Units: m, rad, s, kg, N. Frames:
 world = the table frame (table top z = 0, z up); the arm base sits at ``base_pose`` in it (identity by
 default, where world = robot base frame); the gripper geometry is given in the TCP frame (origin at the
@@ -27,16 +27,16 @@ from typing import TYPE_CHECKING, Literal
 import mujoco
 import numpy as np
 
-from sim.force_map import ForceMap
+from sim.robots.force_map import ForceMap
 from torm.config import from_dict, load_yaml
 from torm.errors import ConfigError, SceneError, UnknownNameError
 
 if TYPE_CHECKING:
-    from sim.robot_ids import RobotIds
+    from sim.robots.ids import RobotIds
 
 log = logging.getLogger(__name__)
 
-ROBOTS_DIR = Path(__file__).resolve().parent / "robots"
+ROBOTS_DIR = Path(__file__).resolve().parent  # one folder per robot beside this module
 ROBOT_YAML = "robot.yaml"
 
 Axis = Literal["x", "y", "z"]
@@ -391,7 +391,7 @@ class RobotConfig:
         base_pose: where the arm base sits in the world (default: the world origin).
         gravcomp: True = gravity compensation on every robot body, False = none, None = as the MJCF says.
         reach_min_share: the simulated backend refuses the robot when it reaches less than this share of the
-            workspace box with the gripper pointing down (:mod:`sim.robot_reach`); lower it for an arm meant to
+            workspace box with the gripper pointing down (:mod:`sim.robots.reach`); lower it for an arm meant to
             cover part of the box.
     """
 
@@ -439,26 +439,26 @@ class RobotConfig:
         return self.gripper.width_to_command(width_m)
 
     def robot_spec(self) -> mujoco.MjSpec:
-        """A fresh MjSpec of the robot alone, composed and placed at ``base_pose`` (see :mod:`sim.robot_compose`)."""
-        from sim.robot_compose import robot_spec
+        """A fresh MjSpec of the robot alone, composed and placed at ``base_pose`` (see :mod:`sim.robots.compose`)."""
+        from sim.robots.compose import robot_spec
 
         return robot_spec(self)
 
     def robot_model(self) -> mujoco.MjModel:
         """The compiled robot-only model (base at ``base_pose``): for IK, FK and plan-time collision checks."""
-        from sim.robot_compose import compile_spec
+        from sim.robots.compose import compile_spec
 
         return compile_spec(self.robot_spec(), f"robot {self.name!r}")
 
     def resolve(self, model: mujoco.MjModel) -> RobotIds:
         """Ids of every joint/actuator/site/geom this config names in ``model`` (SceneError listing what is missing)."""
-        from sim.robot_ids import RobotIds
+        from sim.robots.ids import RobotIds
 
         return RobotIds.resolve(model, self)
 
     def missing_in(self, model: mujoco.MjModel) -> list[str]:
         """Descriptions of everything this config names that ``model`` lacks or contradicts."""
-        from sim.robot_ids import problems_in
+        from sim.robots.ids import problems_in
 
         return problems_in(model, self)
 
@@ -470,7 +470,7 @@ class RobotConfig:
             raise SceneError(f"robot {self.name!r} does not match the compiled model: missing or inconsistent "
                              f"{', '.join(problems)}; fix the names in its robot.yaml or the MJCF")
         if require_force_map:
-            from sim.robot_ids import force_map_problem
+            from sim.robots.ids import force_map_problem
 
             why = force_map_problem(model, self, self.resolve(model))
             if why:
@@ -552,7 +552,7 @@ def solve_home(rcfg: RobotConfig, model: mujoco.MjModel | None = None,
     Returns:
         (n,) joint angles (rad). Raises SceneError when none is reachable (the base cannot reach the box).
     """
-    from sim.robot_reach import _down_rotation
+    from sim.robots.reach import _down_rotation
     from sim.workspace import WORKSPACE_BOUNDS
     from torm.execution.ik import IKSolver
 

@@ -538,7 +538,7 @@ class SimCameraRig:
     def reference_rgb(self, poses_vx4x4: np.ndarray, K: np.ndarray | None = None) -> list[np.ndarray]:
         """(H, W, 3) uint8 RGB of each pose over the empty workspace: the objects hidden, the same renderer, render
         noise independent of the scene's views (PBR ``noise_seed`` 1). Needs a rig built with :meth:`from_world`."""
-        from sim.reference_pass import objects_hidden
+        from sim.cameras.reference_pass import objects_hidden
 
         if self.world is None:
             raise CaptureError("a reference pass needs the world's objects: build the rig with SimCameraRig.from_world")
@@ -625,7 +625,7 @@ class SimCameraRig:
         ``n_views`` overrides the config's view count; ``indices`` renders only those views of the layout
         (names and sensor-depth noise keep the layout index); ``progress`` shows a tqdm bar on stderr.
         ``reference``: also render each view's reference (``CameraView.reference_rgb``): the same camera over the
-        empty workspace (objects hidden: :func:`sim.reference_pass.objects_hidden`), by the same renderer with
+        empty workspace (objects hidden: :func:`sim.cameras.reference_pass.objects_hidden`), by the same renderer with
         independent render noise, as a robot's pass before the objects are placed.
         """
         Ts = self.poses(n_views) if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)

@@ -1,7 +1,7 @@
 """The MuJoCo rasteriser behind the :class:`~sim.render.base.Renderer` interface (today's camera-rig path).
 
 RGB is MuJoCo's OpenGL render (glass = alpha blending, no refraction); instance ids are its segmentation pass
-mapped through ``geom_to_instance``. One :class:`sim.camera_rig.SimCameraRig` (one GL context) per image size.
+mapped through ``geom_to_instance``. One :class:`sim.cameras.rig.SimCameraRig` (one GL context) per image size.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 
 import mujoco
 
-from sim.camera_rig import CameraRigConfig, SimCameraRig
+from sim.cameras.rig import CameraRigConfig, SimCameraRig
 from sim.render.base import RenderCamera, RenderedView
 
 

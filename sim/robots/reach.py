@@ -24,7 +24,7 @@ from torm.errors import SceneError
 from torm.execution.ik import IKConfig, IKSolver
 
 if TYPE_CHECKING:
-    from sim.robot_config import RobotConfig
+    from sim.robots.config import RobotConfig
 
 log = logging.getLogger(__name__)
 

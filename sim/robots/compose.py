@@ -34,7 +34,7 @@ import numpy as np
 from torm.errors import SceneError
 
 if TYPE_CHECKING:
-    from sim.robot_config import RobotConfig
+    from sim.robots.config import RobotConfig
 
 log = logging.getLogger(__name__)
 
@@ -215,7 +215,7 @@ def scale_servo_gains(spec: mujoco.MjSpec, rcfg: RobotConfig) -> None:
     scale = float(rcfg.gripper.servo_gain_scale)
     if scale == 1.0:
         return
-    from sim.robot_ids import _label, position_servo
+    from sim.robots.ids import _label, position_servo
     from torm.errors import ConfigError
 
     model = compile_spec(spec, f"robot {rcfg.name!r}")

@@ -18,7 +18,7 @@ import numpy as np
 from torm.errors import SceneError
 
 if TYPE_CHECKING:
-    from sim.robot_config import RobotConfig
+    from sim.robots.config import RobotConfig
 
 _JOINT_TRN = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
 
