@@ -3,7 +3,7 @@
 A user's real capture (COLMAP cameras, SIMPLE_RADIAL k1 = 0.0325, hand-made masks, 2048x1534, 8 input views) gave
 held-out silhouette IoU 0.922 with torm's defaults against 0.943 for a plain 128^3 voxel hull. This benchmark
 rebuilds that situation on synthetic objects whose truth is known: the geometry of the recorded-frames cases
-(:mod:`torm.capture.synthetic`: ``glass10``, a capsule on a stand; ``bottles20``, three objects side by side;
+(:mod:`torm.capture.synthetic_frames`: ``glass10``, a capsule on a stand; ``bottles20``, three objects side by side;
 ``ring8``, a torus half below z = 0 and a box cut by the border), cameras on the same spiral at high resolution,
 and these degradations (:mod:`torm.capture.degrade`), alone and together:
 
@@ -55,7 +55,7 @@ from recon_vs_carve import auto_box, auto_box_hull, open3d_method, score, torm_m
 from torm.capture.degrade import hand_drawn_mask, perturb_poses  # noqa: E402
 from torm.capture.io import load_capture  # noqa: E402
 from torm.capture.lens import Lens  # noqa: E402
-from torm.capture.synthetic import RECORDED_CASES, case_cameras, case_meshes  # noqa: E402
+from torm.capture.synthetic_frames import RECORDED_CASES, case_cameras, case_meshes  # noqa: E402
 from torm.errors import ReconstructionError  # noqa: E402
 from torm.geometry import cv_to_gl  # noqa: E402
 from torm.mesh.sample import sample_surface  # noqa: E402

@@ -22,7 +22,7 @@ time is <= the best carve's and its Chamfer is lower and its volume IoU higher.
 
 Also per scene: a per-stage ablation of TORM-fast (``--ablation``), and the corrupted-mask case (noisy
 segmenter, preset ``--corrupt-preset``) for TORM-fast and the carves. Part ``recorded``: the synthetic
-recorded-frames captures of :mod:`torm.capture.synthetic` (no table, soft masks, border cuts), default vs
+recorded-frames captures of :mod:`torm.capture.synthetic_frames` (no table, soft masks, border cuts), default vs
 a plain voxel hull on the same input views, held-out IoU and time.
 
 Resumable: the JSON is rewritten after each scene and finished scenes are skipped (``--redo`` to rerun).
@@ -339,7 +339,7 @@ def sim_scene(a: argparse.Namespace, name: str) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------------------------------
 def recorded_case(a: argparse.Namespace, case: str) -> dict[str, Any]:
     from torm.capture.io import load_capture
-    from torm.capture.synthetic import RECORDED_CASES, write_recorded_capture
+    from torm.capture.synthetic_frames import RECORDED_CASES, write_recorded_capture
 
     folder = a.cache / f"recorded_{case}"
     gt = write_recorded_capture(folder, case)
@@ -509,7 +509,7 @@ def report(doc: dict[str, Any], path_md: Path) -> None:
                               x.get("heldout_iou_min"), x.get("chamfer_mm"), x.get("volume_iou"), x.get("time_s"),
                               x.get("n_found"), x.get("error", "")[:60]])
         nw = sum(bool(r.get("fast_wins")) for r in doc["recorded"].values())
-        md.append("\n## Recorded-frames cases (synthetic, `torm.capture.synthetic`; issue #17)\n\n"
+        md.append("\n## Recorded-frames cases (synthetic, `torm.capture.synthetic_frames`; issue #17)\n\n"
                   f"Default settings (box and table from the capture: none, so automatic box, no table) vs numpy "
                   f"voxel hulls over the same automatic box, same input views. TORM-fast wins {nw}/"
                   f"{len(doc['recorded'])} cases (time <= best carve's, lower Chamfer, higher volume IoU).\n\n"
@@ -557,7 +557,7 @@ def main(argv: list[str] | None = None) -> int:
                 log.info("%s done in %.0f s: TORM-fast %s mm %.2f s; best carve %s", key, time.perf_counter() - t,
                          bc.fmt(f.get("chamfer_mm")), f.get("time_s", np.nan), doc["scenes"][key].get("best_carve"))
         if "recorded" in a.parts:
-            from torm.capture.synthetic import RECORDED_CASES
+            from torm.capture.synthetic_frames import RECORDED_CASES
 
             for case in a.cases or RECORDED_CASES:
                 if case in doc["recorded"] and not a.redo:

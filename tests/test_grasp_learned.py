@@ -10,7 +10,7 @@ from onnx import TensorProto, helper
 
 from torm.errors import ModelFileError
 from torm.grasp import GraspPlanner
-from torm.grasp.learned import OnnxGraspPlanner
+from torm.grasp.onnx_graspnet import OnnxGraspPlanner
 from torm.types import ObjectPointCloud
 
 # top-down: x = -z, y = +y, z = x cross y = +x ; from below: x = +z, y = +y, z = -x

@@ -11,7 +11,7 @@ import pytest
 from torm.capture.io import load_capture, save_capture
 from torm.capture.lens import Lens
 from torm.errors import CaptureError
-from torm.segmentation.synthetic import sphere_capture
+from torm.segmentation.sphere_capture import sphere_capture
 
 STRONG = {"k1": -0.35, "k2": 0.12, "p1": 0.002, "p2": -0.001}
 #: spheres (x, y, z, r m) spread over the frame, where distortion moves pixels most

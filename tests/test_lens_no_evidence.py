@@ -14,7 +14,7 @@ from torm.capture.lens import Lens, no_evidence_masks
 from torm.errors import CaptureError
 from torm.reconstruction import ReconstructionConfig, reconstruct
 from torm.segmentation.base import SegmentationResult
-from torm.segmentation.synthetic import sphere_capture
+from torm.segmentation.sphere_capture import sphere_capture
 
 #: a pincushion lens: the undistorted image's border and corners have no source pixel
 PINCUSHION = Lens("SIMPLE_RADIAL", (("k1", 0.15),))

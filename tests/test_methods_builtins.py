@@ -86,7 +86,7 @@ def test_builtin_oracle_samples_the_meshes_it_is_given():
 
 
 def test_builtin_torm_method_accepts_a_segmenter_object():
-    from torm.methods.builtins import TormMethod
+    from torm.methods.builtin_methods import TormMethod
 
     class Seg:
         needs_reference = True
@@ -106,7 +106,7 @@ def test_builtin_antipodal_planner_goes_through_the_planner_interface():
     from torm.grasp.gripper import GripperGeometry
     from torm.grasp.planner import GraspPlannerConfig
     from torm.methods import load_method
-    from torm.methods.planners import PlannerContext, load_planner, validate_grasps
+    from torm.methods.planner_plugins import PlannerContext, load_planner, validate_grasps
     from torm.types import TriMesh
 
     box = trimesh.creation.box((0.04, 0.04, 0.05))
@@ -131,7 +131,7 @@ def test_a_builtin_run_as_a_module_callable_plugin_sees_the_same_depth_as_the_bu
     from torm.pipeline import TrialConfig, make_backend
 
     clouds = {}
-    for method in ("depth", "torm.methods.builtins:DepthMethod"):
+    for method in ("depth", "torm.methods.builtin_methods:DepthMethod"):
         cfg = config.from_dict(TrialConfig, {"scenario": "rw1", "method": method}, [
             "capture.n_views=6", "capture.scale=0.25", "capture.depth_model=statistical"])
         backend = make_backend(cfg)

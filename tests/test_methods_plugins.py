@@ -119,7 +119,7 @@ def test_module_callable_plugins_run_in_the_bench_and_a_crashing_one_costs_one_r
 def test_planner_plugins_are_found_checked_and_their_mistakes_named():
     from torm.errors import UnknownNameError
     from torm.grasp.gripper import GripperGeometry
-    from torm.methods.planners import PlannerContext, load_planner, validate_grasps
+    from torm.methods.planner_plugins import PlannerContext, load_planner, validate_grasps
     from torm.pipeline import TrialConfig
     from torm.types import ObjectPointCloud
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-import torm.methods.builtins as builtins
+import torm.methods.builtin_methods as builtins
 from torm.segmentation.base import SegmentationResult, Segmenter
 from torm.segmentation.gt import gt_masks
 

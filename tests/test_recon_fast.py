@@ -176,7 +176,7 @@ def test_few_views_stop_the_band_at_the_facet_scale(tmp_path):
     """glass10 (9 input views): the facet cap keeps the band at 48 cells, where it fits the held-out views
     better than at the 192 cells the pixel rule alone picks (recon_vs_carve.md: Chamfer 3.059 vs 3.072 mm)."""
     from torm.capture.io import load_capture
-    from torm.capture.synthetic import write_recorded_capture
+    from torm.capture.synthetic_frames import write_recorded_capture
 
     write_recorded_capture(tmp_path, "glass10")
     cap = load_capture(tmp_path)

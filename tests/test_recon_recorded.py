@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from torm.capture.io import load_capture, mask_kind
-from torm.capture.synthetic import case_meshes, soft_silhouette, write_recorded_capture
+from torm.capture.synthetic_frames import case_meshes, soft_silhouette, write_recorded_capture
 from torm.cli import main
 from torm.errors import ReconstructionError
 from torm.reconstruction import ReconstructionConfig, reconstruct

@@ -175,7 +175,7 @@ def test_scenario_targets_name_the_classes_the_task_picks():
 def test_a_trial_prompts_a_learned_segmenter_with_its_scenarios_targets(caplog):
     """Without a class head the prompt stays 'transparent' and a warning names what cannot be picked; an explicit
     ``classes`` option is left alone."""
-    from torm.methods.builtins import prompt_scenario_targets, segmenter_for
+    from torm.methods.builtin_methods import prompt_scenario_targets, segmenter_for
     from torm.pipeline import SegmentationSettings, TrialConfig
 
     cfg = TrialConfig(scenario="rw5", segmentation=SegmentationSettings("learned", options={"model": "v4"}))

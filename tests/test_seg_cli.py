@@ -12,7 +12,7 @@ import yaml
 from torm.capture.io import load_capture, save_capture
 from torm.cli import main
 from torm.segmentation import make_segmenter
-from torm.segmentation.synthetic import sphere_capture
+from torm.segmentation.sphere_capture import sphere_capture
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from torm.cli import main
 from torm.segmentation import make_segmenter
 from torm.segmentation.base import MASK_SOURCE_KEY, mask_reference, masks_are_ground_truth
 from torm.segmentation.learned import _DOMAIN_WARNED, capture_domain
-from torm.segmentation.synthetic import sphere_capture
+from torm.segmentation.sphere_capture import sphere_capture
 from torm.types import Capture
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from torm.errors import ConfigError, SegmentationError
 from torm.segmentation.multiview import ConsistencyConfig, check_views, union_silhouettes
-from torm.segmentation.synthetic import sphere_capture
+from torm.segmentation.sphere_capture import sphere_capture
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from torm.errors import CaptureError, ConfigError, UnknownNameError
 from torm.metrics import silhouette_iou
 from torm.segmentation import make_segmenter, mask_quality
 from torm.segmentation.noise import PRESET_EXPECTED_IOU, PRESETS, MaskCorruptor, NoiseConfig, noise_preset
-from torm.segmentation.synthetic import sphere_capture
+from torm.segmentation.sphere_capture import sphere_capture
 from torm.types import CameraView, Capture
 
 

@@ -47,8 +47,8 @@ SAME_OBJECT_XY = 0.03
 
 
 def _segmenter(config: TrialConfig) -> Any:
-    """The segmenter ``config.segmentation`` names, built (:func:`torm.methods.builtins.segmenter_for`)."""
-    from torm.methods.builtins import segmenter_for
+    """The segmenter ``config.segmentation`` names, built (:func:`torm.methods.builtin_methods.segmenter_for`)."""
+    from torm.methods.builtin_methods import segmenter_for
 
     return segmenter_for(config)
 
@@ -216,7 +216,7 @@ def perceive(config: TrialConfig, backend: Any, rng: np.random.Generator, timing
             grants explicitly in simulation; the real backend has none).
     """
     from torm.methods import MethodContext, is_builtin, load_method
-    from torm.methods.builtins import builtin_method
+    from torm.methods.builtin_methods import builtin_method
 
     plugin = None if is_builtin(config.method) else load_method(config.method, dict(config.method_options))
     # a built-in is built before capturing so that a misconfigured one (oracle on the real arm) costs no capture
@@ -287,9 +287,9 @@ def perceive_plugin(method: Any, config: TrialConfig, capture: Capture, table_z:
 
 def plan_with_planner(config: TrialConfig, per: Perception, table_z: float, gripper: Any, rng: np.random.Generator,
                      obstacles: np.ndarray | None) -> list[list[Any]]:
-    """Grasps from the trial's planner (:mod:`torm.methods.planners`: the built-in ``antipodal`` and plug-ins
-    through the same interface), checked before execution (:func:`~torm.methods.planners.validate_grasps`)."""
-    from torm.methods.planners import PlannerContext, load_planner, validate_grasps
+    """Grasps from the trial's planner (:mod:`torm.methods.planner_plugins`: the built-in ``antipodal`` and plug-ins
+    through the same interface), checked before execution (:func:`~torm.methods.planner_plugins.validate_grasps`)."""
+    from torm.methods.planner_plugins import PlannerContext, load_planner, validate_grasps
 
     planner = load_planner(config.planner, dict(config.planner_options))
     ctx = PlannerContext(table_height=table_z, gripper=gripper, obstacles=obstacles, rng=rng, config=config.grasp,

@@ -116,7 +116,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         ctx.update(method_name=info.name, method_version=info.version, method_source=info.source,
                    method_options_sha=options_hash(dict(config.method_options)))
     if config.planner != "antipodal":  # which planner, which version, with which options
-        from torm.methods.planners import load_planner
+        from torm.methods.planner_plugins import load_planner
         from torm.methods.registry import options_hash as planner_hash
 
         pl = load_planner(config.planner, dict(config.planner_options))

@@ -150,7 +150,7 @@ class TrialConfig:
             or ``package.module:callable`` (:mod:`torm.methods`; ``torm methods list``).
         method_options: keyword arguments for a plug-in method's factory (recorded, hashed in the context).
         planner: the grasp planner: ``antipodal`` (default), ``onnx_graspnet``, a ``torm.planners`` entry point or
-            ``package.module:callable`` (:mod:`torm.methods.planners`).
+            ``package.module:callable`` (:mod:`torm.methods.planner_plugins`).
         planner_options: keyword arguments for the planner's factory.
         backend: ``sim`` or ``real``.
         robot: robot folder name or robot YAML path.
@@ -199,7 +199,7 @@ class TrialConfig:
 
             check_method_name(self.method)
         if self.planner != "antipodal":
-            from torm.methods.planners import check_planner_name
+            from torm.methods.planner_plugins import check_planner_name
 
             check_planner_name(self.planner)
         if self.table not in TABLE_SOURCES:

@@ -32,7 +32,7 @@ def _planners() -> list:
 
     import torm
     from torm.methods import MethodInfo
-    from torm.methods.planners import BUILTIN_PLANNERS, ENTRY_POINT_GROUP, load_planner
+    from torm.methods.planner_plugins import BUILTIN_PLANNERS, ENTRY_POINT_GROUP, load_planner
 
     rows = [MethodInfo(n, torm.__version__, "builtin planner", d) for n, d in BUILTIN_PLANNERS.items()]
     for ep in sorted(metadata.entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):

@@ -4,7 +4,7 @@ Grasp frame (GraspNet): origin at the grasp centre, x = approach, y = closing ax
 """
 
 from torm.grasp.gripper import BOX_NAMES, GripperGeometry
-from torm.grasp.learned import OnnxGraspPlanner
+from torm.grasp.onnx_graspnet import OnnxGraspPlanner
 from torm.grasp.planner import (
     AntipodalGraspPlanner,
     GraspPlanner,

@@ -3,7 +3,7 @@
 Names a trial's ``method`` may take:
 
 - a built-in: ``torm``, ``depth``, ``depth_fusion``, ``oracle`` (:data:`torm.perception.METHODS`), implemented
-  through the same interface in :mod:`torm.methods.builtins` (the loop calls their ``run``, which keeps their
+  through the same interface in :mod:`torm.methods.builtin_methods` (the loop calls their ``run``, which keeps their
   diagnostics; ``perceive`` is the interface);
 - a plug-in installed with an entry point in the group ``torm.methods`` (``[project.entry-points."torm.methods"]
   plane_fill = "torm_plane_fill:PlaneFill"`` in the plug-in's ``pyproject.toml``): its entry-point name;
@@ -27,7 +27,7 @@ from torm.errors import PluginError
 
 #: the entry-point group plug-in perception methods register in
 ENTRY_POINT_GROUP = "torm.methods"
-#: built-in methods (classes in torm.methods.builtins; their steps in torm.perception)
+#: built-in methods (classes in torm.methods.builtin_methods; their steps in torm.perception)
 BUILTINS: dict[str, str] = {
     "torm": "TORM: silhouettes -> DMTet-Multi -> split objects (the paper's method)",
     "depth": "single-view sensor depth inside the capture's masks, symmetric completion",
@@ -90,12 +90,12 @@ def _factory(name: str) -> tuple[Any, str]:
 
 def load_method(name: str, options: dict[str, Any] | None = None) -> Any:
     """The method object for ``name``, built with ``options`` and checked against the interface (``name``,
-    ``version``, ``needs``, ``perceive``). A built-in name gives its :mod:`torm.methods.builtins` class (``options``
-    are its constructor's arguments, e.g. ``load_method("depth", {"view": 3})``)."""
+    ``version``, ``needs``, ``perceive``). A built-in name gives its :mod:`torm.methods.builtin_methods` class
+    (``options`` are its constructor's arguments, e.g. ``load_method("depth", {"view": 3})``)."""
     from torm.methods.interface import Needs
 
     if is_builtin(name):
-        from torm.methods.builtins import BUILTIN_CLASSES
+        from torm.methods.builtin_methods import BUILTIN_CLASSES
 
         factory, source = BUILTIN_CLASSES[name], "builtin"
     else:

@@ -10,7 +10,7 @@ from torm_scene_graspnet.tiny_model import build_tiny_model
 from torm.errors import PluginError
 from torm.grasp.gripper import GripperGeometry
 from torm.grasp.planner import GraspPlannerConfig
-from torm.methods.planners import PlannerContext, validate_grasps
+from torm.methods.planner_plugins import PlannerContext, validate_grasps
 from torm.types import ObjectPointCloud
 
 

@@ -7,7 +7,7 @@ list[list[Grasp]]``: one list per input cloud (input order), best first, each :c
 same IK and judge as the built-in planner.
 
 Names a trial's ``planner`` may take: ``antipodal`` (the analytic planner, :func:`torm.grasp.planner.plan_grasps`,
-the default), ``onnx_graspnet`` (:class:`torm.grasp.learned.OnnxGraspPlanner`: a GraspNet-format ONNX model;
+the default), ``onnx_graspnet`` (:class:`torm.grasp.onnx_graspnet.OnnxGraspPlanner`: a GraspNet-format ONNX model;
 option ``model_path``), an entry point of the group ``torm.planners``, or ``package.module:callable`` (a factory
 called with ``planner_options``).
 """
@@ -62,12 +62,12 @@ class _OnnxGraspNet:
     def __init__(self, model_path: str = "", min_score: float = 0.0) -> None:
         if not model_path:
             raise PluginError("planner 'onnx_graspnet' needs planner_options.model_path: a GraspNet-format ONNX file "
-                              "(see torm/grasp/learned.py for its signature)")
+                              "(see torm/grasp/onnx_graspnet.py for its signature)")
         self.model_path, self.min_score = model_path, float(min_score)
 
     def plan(self, point_clouds: Sequence[ObjectPointCloud], meshes: Any, context: PlannerContext
              ) -> list[list[Grasp]]:
-        from torm.grasp.learned import OnnxGraspPlanner
+        from torm.grasp.onnx_graspnet import OnnxGraspPlanner
 
         return OnnxGraspPlanner(self.model_path, context.gripper, context.config, self.min_score).plan(
             point_clouds, meshes, context.table_height)

@@ -5,8 +5,8 @@
 :func:`builtin_method` and calls :meth:`run`, which is ``perceive`` before it is reduced to the interface: the same
 per-object clouds plus the method's diagnostics (timings, mask quality, reconstruction metrics) as a
 :class:`torm.perception.Perception`. ``perceive`` is ``run`` with the diagnostics dropped, so a lab can call a
-built-in exactly as it calls its own method (``load_method("depth")``, or ``torm.methods.builtins:DepthMethod`` as a
-``module:callable`` plug-in in a trial) and compose them.
+built-in exactly as it calls its own method (``load_method("depth")``, or
+``torm.methods.builtin_methods:DepthMethod`` as a ``module:callable`` plug-in in a trial) and compose them.
 
 Frames and units as in :mod:`torm.methods.interface`: world frame (robot base, z up), metres.
 """

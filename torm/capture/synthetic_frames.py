@@ -11,7 +11,7 @@ Silhouettes are rendered with :func:`torm.reconstruction.raster.render_mask` at 
 area-averaged, so a mask pixel's value is the fraction of it the objects cover. The images are flat
 colours (objects darker than the background); only the masks matter for reconstruction.
 
-Run ``python -m torm.capture.synthetic OUT [CASE]`` to write one (README: "reconstruct your own capture").
+Run ``python -m torm.capture.synthetic_frames OUT [CASE]`` to write one (README: "reconstruct your own capture").
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ def write_recorded_capture(folder: str | Path, case: str = "ring8") -> list[TriM
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if not args:
-        print(f"usage: python -m torm.capture.synthetic OUT [CASE]; cases: {', '.join(RECORDED_CASES)}",
+        print(f"usage: python -m torm.capture.synthetic_frames OUT [CASE]; cases: {', '.join(RECORDED_CASES)}",
               file=sys.stderr)
         return 2
     case = args[1] if len(args) > 1 else "ring8"
