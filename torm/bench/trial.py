@@ -21,6 +21,11 @@ called when the trial's process died without running its own stop path (SIGKILL,
 a dead Ray worker). This module's hook stops a real arm from the driver
 (:func:`torm.hardware.remote_stop.stop_arm`: cancel every goal, then disable; the callable returns what was
 sent); None when the trial is not on an armed real arm.
+
+Options per method in a grid: ``--set method_options.<method>.<key>=VALUE``, where ``<method>`` is a built-in or an
+installed entry point's name (:func:`torm.methods.method_names`), goes to that method's trials only (as
+``method_options.<key>``); ``--set method_options.<key>=VALUE`` goes to every method. A ``module:callable`` plug-in
+takes its own options through an entry-point name or a grid of its own.
 """
 
 from __future__ import annotations
@@ -40,12 +45,32 @@ log = logging.getLogger(__name__)
 BENCH_DEFAULTS: dict[str, Any] = {"world": {"realism": "measured"}}
 
 
+def method_overrides(overrides: tuple[str, ...], method: str) -> tuple[str, ...]:
+    """``overrides`` as ``method``'s trials see them: ``method_options.<name>.<key>=v`` becomes
+    ``method_options.<key>=v`` when ``<name>`` is ``method`` and is dropped when it names another method
+    (:func:`torm.methods.method_names`); everything else is kept as it is."""
+    from torm.methods import method_names
+
+    names = set(method_names()) | {method}
+    out = []
+    for item in overrides:
+        key, eq, value = item.partition("=")
+        head, _, tail = key.removeprefix("method_options.").partition(".")
+        if eq and key.startswith("method_options.") and tail and head in names:
+            if head == method:
+                out.append(f"method_options.{tail}={value}")
+            continue
+        out.append(item)
+    return tuple(out)
+
+
 def trial_config(spec: TrialSpec, overrides: tuple[str, ...] = ()) -> Any:
-    """The :class:`torm.pipeline.TrialConfig` of ``spec``: :data:`BENCH_DEFAULTS` + ``overrides`` + the grid cell."""
+    """The :class:`torm.pipeline.TrialConfig` of ``spec``: :data:`BENCH_DEFAULTS` + ``overrides`` (per-method
+    options routed by :func:`method_overrides`) + the grid cell."""
     from torm.config import from_dict
     from torm.pipeline import TrialConfig
 
-    base = from_dict(TrialConfig, BENCH_DEFAULTS, overrides)
+    base = from_dict(TrialConfig, BENCH_DEFAULTS, method_overrides(tuple(overrides), spec.method))
     return dataclasses.replace(base, scenario=spec.scenario, seed=spec.seed, method=spec.method)
 
 

@@ -15,9 +15,10 @@ from torm.methods.registry import (
     list_methods,
     load_method,
     method_info,
+    method_names,
 )
 from torm.methods.validate import validate_estimates
 
 __all__ = ["BUILTINS", "ENTRY_POINT_GROUP", "MethodContext", "MethodInfo", "Needs", "ObjectEstimate",
            "PerceptionMethod", "check_method_name", "is_builtin", "list_methods", "load_method", "method_info",
-           "validate_estimates"]
+           "method_names", "validate_estimates"]

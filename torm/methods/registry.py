@@ -55,6 +55,11 @@ def _entry_points() -> dict[str, metadata.EntryPoint]:
     return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
 
 
+def method_names() -> tuple[str, ...]:
+    """The names a method goes by without importing it: the built-ins, then the installed entry points."""
+    return tuple(BUILTINS) + tuple(sorted(n for n in _entry_points() if n not in BUILTINS))
+
+
 def resolve_factory(name: str, group: str = ENTRY_POINT_GROUP, kind: str = "method",
                     builtins: tuple[str, ...] = tuple(BUILTINS)) -> tuple[Any, str]:
     """(factory, source) of a plug-in name: ``package.module:callable`` imported, or the entry point ``name`` of
