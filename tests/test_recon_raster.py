@@ -264,6 +264,35 @@ def test_sparse_loss_equals_dense_loss_on_random_values():
     assert torch.allclose(got.detach(), want.detach(), atol=1e-6) and torch.allclose(delta.grad, d2.grad, atol=1e-6)
 
 
+def test_weighted_sparse_loss_equals_the_weighted_dense_loss_and_ignores_zero_weight_pixels():
+    """Per-pixel weights (0 = no evidence): the sparse path equals the dense reference, and a zero-weight pixel's
+    target changes neither the loss nor its gradient."""
+    g = torch.Generator().manual_seed(1)
+    hard = (torch.rand((2, 5, 7), generator=g) > 0.5).float()
+    target = torch.rand((2, 5, 7), generator=g)
+    weight = (torch.rand((2, 5, 7), generator=g) > 0.3).float()
+    pix = torch.tensor([0, 3, 34, 35, 40, 69])
+    weight.reshape(-1)[torch.tensor([3, 40])] = 0.0  # two edge pixels without evidence
+
+    def sparse(tgt):
+        delta = (torch.rand(6, generator=torch.Generator().manual_seed(2)) - 0.5).requires_grad_(True)
+        loss = losses.envelope_mask_loss_sparse(hard, pix, delta, tgt, 1.7, weight)
+        loss.sum().backward()
+        return loss.detach(), delta.grad, delta
+
+    got, grad, delta = sparse(target)
+    d2 = delta.detach().clone().requires_grad_(True)
+    want = losses.envelope_mask_loss(hard.reshape(-1).index_add(0, pix, d2).reshape(2, 5, 7), target, 1.7, weight)
+    want.sum().backward()
+    assert torch.allclose(got, want.detach(), atol=1e-6) and torch.allclose(grad, d2.grad, atol=1e-6)
+    flipped = torch.where(weight > 0, target, 1.0 - target)  # other targets where the weight is 0
+    got2, grad2, _ = sparse(flipped)
+    assert torch.allclose(got, got2, atol=1e-7) and torch.allclose(grad, grad2, atol=1e-7)
+    assert grad[1] == 0 and grad[4] == 0  # the two no-evidence pixels pull nothing
+    ones = torch.ones_like(hard)
+    assert torch.allclose(losses.mask_loss_init(hard, target, ones), losses.mask_loss_init(hard, target))
+
+
 def test_sparse_silhouettes_of_an_empty_mesh_and_an_unfinished_batch():
     v = torch.zeros((0, 3), requires_grad=True)
     sil = render_silhouettes_sparse(v, np.zeros((0, 3), np.int64), K, T_ID, H, W)

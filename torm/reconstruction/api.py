@@ -521,14 +521,19 @@ def _fast_band(fine: ProjectiveSDF, Ks, poses, bounds, table_z, config, ev, W_fu
     return meshes[best]
 
 
-def _dense_grid_modes(sil, Ks, poses, bounds, table_z, vote, config, info, timings, history) -> TriMesh:
-    """Fast mode with DMTet refinement, or paper mode, on the dense grid_res tet grid."""
+def _dense_grid_modes(sil, Ks, poses, bounds, table_z, vote, config, info, timings, history,
+                      unknown=None) -> TriMesh:
+    """Fast mode with DMTet refinement, or paper mode, on the dense grid_res tet grid.
+
+    ``sil`` counts no-evidence pixels (``unknown``, (V, H, W) bool or None) as inside, which is right for the hull
+    (they never carve); DMTet's mask loss gives them weight 0 instead (they pull neither way)."""
     t = time.perf_counter()
     grid = build_tet_grid(bounds, config.grid_res)
     timings["grid"] = time.perf_counter() - t
     info.update(grid_cells=list(grid.res), grid_verts=grid.n_verts, cell_m=float(grid.cell_size.max()))
     T_cw = np.linalg.inv(poses)
-    sup_masks, sup_K = downsample_masks(sil, Ks, config.mask_res)
+    sup_masks, sup_K = downsample_masks(sil if unknown is None else sil & ~unknown, Ks, config.mask_res)
+    weights = None if unknown is None else downsample_masks(~unknown, Ks, config.mask_res)[0]
     if config.mode == "fast":
         t = time.perf_counter()
         if config.hull_mask_res:
@@ -542,10 +547,11 @@ def _dense_grid_modes(sil, Ks, poses, bounds, table_z, vote, config, info, timin
         dcfg = replace(config.dmtet, param="vertex", start="hull", loss=config.refine_loss,
                        iterations=config.refine_iters, lr=config.refine_lr, lr_min=config.refine_lr_min,
                        alpha_max=1.0, alpha_min=1.0, mask_res=config.mask_res, seed=config.seed)
-        res = optimise_dmtet(grid, sup_K, T_cw, sup_masks, dcfg, init_sdf_v=sdf.numpy(), table_z=table_z)
+        res = optimise_dmtet(grid, sup_K, T_cw, sup_masks, dcfg, init_sdf_v=sdf.numpy(), table_z=table_z,
+                             weights_vxhxw=weights)
     else:
         dcfg = replace(config.dmtet, start="sphere", mask_res=config.mask_res, seed=config.seed)
-        res = optimise_dmtet(grid, sup_K, T_cw, sup_masks, dcfg, table_z=table_z)
+        res = optimise_dmtet(grid, sup_K, T_cw, sup_masks, dcfg, table_z=table_z, weights_vxhxw=weights)
     history.update(res.history)
     timings["dmtet"] = res.timings["total_s"]
     info["dmtet_ms_per_step"] = res.timings["ms_per_step"]
@@ -641,7 +647,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig | None = None) ->
             mesh = _fast_band(fine, Ks, poses, bounds, table_z, config, ev, sil.shape[2], info, timings)
         else:
             mesh = _dense_grid_modes(repaired if config.mode == "fast" else sil, Ks, poses, bounds, table_z, vote,
-                                     config, info, timings, history)
+                                     config, info, timings, history, unknown)
     if mesh.is_empty:
         collapsed = info.get("collapsed_at", -1)
         vanished = (f" (DMTet-Multi's mesh vanished at step {collapsed}; DMTetConfig.rescue re-seeds it "

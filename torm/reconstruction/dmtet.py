@@ -140,6 +140,7 @@ def optimise_dmtet(
     cfg: DMTetConfig,
     init_sdf_v: np.ndarray | None = None,
     table_z: float | None = None,
+    weights_vxhxw: np.ndarray | None = None,
 ) -> DMTetResult:
     """Run DMTet-Multi.
 
@@ -151,6 +152,9 @@ def optimise_dmtet(
         cfg: the optimiser settings.
         init_sdf_v: (V,) start SDF in metres for ``start="hull"`` (negative inside).
         table_z: table height (m); grid vertices below it are held outside (and the dome stands on it).
+        weights_vxhxw: optional per-pixel weights of the mask loss in [0, 1], the masks' shape: the share of each
+            supervision pixel that holds evidence (0 where the view has no source pixel after undistortion,
+            :func:`torm.capture.lens.no_evidence_masks`); None weighs every pixel 1.
 
     Returns:
         :class:`DMTetResult`. When the mesh vanishes, without ``cfg.rescue`` the run stops at that step with an
@@ -160,11 +164,12 @@ def optimise_dmtet(
         ``timings["torch_threads"]``: the intra-op threads it ran with (``cfg.threads``, or the caller's for 0).
     """
     with _torch_threads(cfg.threads or torch.get_num_threads()):
-        return _optimise(grid, K_vx3x3, T_cam_world_vx4x4, masks_vxhxw, cfg, init_sdf_v, table_z)
+        return _optimise(grid, K_vx3x3, T_cam_world_vx4x4, masks_vxhxw, cfg, init_sdf_v, table_z, weights_vxhxw)
 
 
 def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray, masks_vxhxw: np.ndarray,
-              cfg: DMTetConfig, init_sdf_v: np.ndarray | None, table_z: float | None) -> DMTetResult:
+              cfg: DMTetConfig, init_sdf_v: np.ndarray | None, table_z: float | None,
+              weights_vxhxw: np.ndarray | None = None) -> DMTetResult:
     """:func:`optimise_dmtet` at the torch thread count already set."""
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -198,6 +203,10 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
     opt = torch.optim.Adam(fld.params, lr=cfg.lr * lr_scale)
     masks_t = torch.from_numpy(np.ascontiguousarray(masks_vxhxw, dtype=np.float32))
     masks_in = masks_vxhxw > 0.5
+    if weights_vxhxw is not None and np.shape(weights_vxhxw) != masks_vxhxw.shape:
+        raise ConfigError(f"DMTet weights {np.shape(weights_vxhxw)} must match the masks {masks_vxhxw.shape}")
+    weights_t = None if weights_vxhxw is None else torch.from_numpy(
+        np.ascontiguousarray(np.clip(weights_vxhxw, 0.0, 1.0), dtype=np.float32))
     K_all = np.asarray(K_vx3x3, dtype=np.float64)
     T_all = np.asarray(T_cam_world_vx4x4, dtype=np.float64)
     hist: dict[str, list[float]] = {k: [] for k in ("loss", "mask_loss", "eikonal", "iou", "alpha", "lr", "n_faces")}
@@ -227,10 +236,11 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
         idx = rng.choice(V_views, size=nb, replace=False)
         s, verts, mv, mf = surf.extract(it)
         tgt = masks_t[idx]
+        wgt = None if weights_t is None else weights_t[idx]
         eik_job = None
         if len(mf) == 0:
             hist["empty_steps"][0] += 1
-            mask_l = losses.mask_loss_init(torch.zeros_like(tgt), tgt).sum()
+            mask_l = losses.mask_loss_init(torch.zeros_like(tgt), tgt, wgt).sum()
             if not cfg.rescue:
                 hist["collapsed_at"][0] = float(it)
                 log.warning("DMTet %s/%s: the mesh vanished at step %d of %d; stopping with an empty mesh "
@@ -253,7 +263,7 @@ def _optimise(grid: TetGrid, K_vx3x3: np.ndarray, T_cam_world_vx4x4: np.ndarray,
                 sil = batch.finish()
                 # eq. (1) is eq. (2) with alpha = 1 (alpha is 1 for "init"); the graph holds only the edge pixels
                 per_view = losses.envelope_mask_loss_sparse(torch.from_numpy(sil.hard_vxhxw), sil.pix_n, sil.delta_n,
-                                                            tgt, alpha)
+                                                            tgt, alpha, wgt)
                 if cfg.loss == "robust":
                     per_view = per_view * losses.robust_view_weights(per_view, cfg.robust_kind, cfg.robust_c)
                 mask_l = per_view.sum()

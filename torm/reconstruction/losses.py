@@ -12,18 +12,27 @@ import torch
 from torm.errors import ConfigError
 
 
-def mask_loss_init(pred_vxhxw: torch.Tensor, target_vxhxw: torch.Tensor) -> torch.Tensor:
-    """Eq. (1): per-view mean over pixels of (M_hat - M)^2; shape (V,) (or () for a single (H, W) image)."""
-    return ((pred_vxhxw - target_vxhxw) ** 2).mean(dim=(-2, -1))
+def mask_loss_init(pred_vxhxw: torch.Tensor, target_vxhxw: torch.Tensor,
+                   weight_vxhxw: torch.Tensor | None = None) -> torch.Tensor:
+    """Eq. (1): per-view mean over pixels of (M_hat - M)^2; shape (V,) (or () for a single (H, W) image).
+
+    ``weight_vxhxw`` (same shape, in [0, 1]): each pixel's weight; 0 where a pixel holds no evidence (no source
+    after undistortion: the view abstains there), so neither the object nor the background is pulled there."""
+    sq = (pred_vxhxw - target_vxhxw) ** 2
+    return (sq if weight_vxhxw is None else sq * weight_vxhxw).mean(dim=(-2, -1))
 
 
-def envelope_mask_loss(pred_vxhxw: torch.Tensor, target_vxhxw: torch.Tensor, alpha: float) -> torch.Tensor:
-    """Eq. (2): per-view mean of (M_hat - alpha * M)^2. alpha > 1 pulls outward harder on object pixels."""
-    return ((pred_vxhxw - alpha * target_vxhxw) ** 2).mean(dim=(-2, -1))
+def envelope_mask_loss(pred_vxhxw: torch.Tensor, target_vxhxw: torch.Tensor, alpha: float,
+                       weight_vxhxw: torch.Tensor | None = None) -> torch.Tensor:
+    """Eq. (2): per-view mean of (M_hat - alpha * M)^2. alpha > 1 pulls outward harder on object pixels.
+    ``weight_vxhxw``: per-pixel weights as in :func:`mask_loss_init` (the slow reference of the sparse path)."""
+    sq = (pred_vxhxw - alpha * target_vxhxw) ** 2
+    return (sq if weight_vxhxw is None else sq * weight_vxhxw).mean(dim=(-2, -1))
 
 
 def envelope_mask_loss_sparse(hard_vxhxw: torch.Tensor, pix_n: torch.Tensor, delta_n: torch.Tensor,
-                              target_vxhxw: torch.Tensor, alpha: float) -> torch.Tensor:
+                              target_vxhxw: torch.Tensor, alpha: float,
+                              weight_vxhxw: torch.Tensor | None = None) -> torch.Tensor:
     """Eq. (2) (eq. (1) with ``alpha = 1``) of the prediction ``hard + delta at pix``, shape (V,), with a graph
     only through ``delta_n``: the value and gradient of :func:`envelope_mask_loss` on the dense prediction (up to
     float rounding) at a cost in proportion to N, not V x H x W.
@@ -34,15 +43,19 @@ def envelope_mask_loss_sparse(hard_vxhxw: torch.Tensor, pix_n: torch.Tensor, del
         delta_n: (N,) the prediction minus ``hard`` at those pixels (differentiable).
         target_vxhxw: (V, H, W) target masks in [0, 1].
         alpha: the envelope coefficient of eq. (2).
+        weight_vxhxw: optional (V, H, W) per-pixel weights (:func:`mask_loss_init`; 0 = no evidence).
 
     Per pixel, (h + d - a t)^2 = (h - a t)^2 + d (2 (h - a t) + d): the first term is summed over every pixel
     without a graph, the second over the N pixels.
     """
     V, H, W = target_vxhxw.shape
     with torch.no_grad():
-        base = ((hard_vxhxw - alpha * target_vxhxw) ** 2).sum(dim=(-2, -1))
+        sq = (hard_vxhxw - alpha * target_vxhxw) ** 2
+        base = (sq if weight_vxhxw is None else sq * weight_vxhxw).sum(dim=(-2, -1))
         r0 = (hard_vxhxw.reshape(-1)[pix_n] - alpha * target_vxhxw.reshape(-1)[pix_n]).to(delta_n.dtype)
     extra = delta_n * (2.0 * r0 + delta_n)
+    if weight_vxhxw is not None:
+        extra = extra * weight_vxhxw.reshape(-1)[pix_n].to(delta_n.dtype)
     per_view = torch.zeros(V, dtype=delta_n.dtype, device=delta_n.device).index_add(0, pix_n // (H * W), extra)
     return (base.to(delta_n.dtype) + per_view) / (H * W)
 
