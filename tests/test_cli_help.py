@@ -63,6 +63,8 @@ def test_every_command_has_plain_text_help_with_examples_that_parse():
             args = parser.parse_args(argv)  # exits (SystemExit) on an invalid example
             assert args.command == argv[0]
             overrides = getattr(args, "overrides", [])
+            if argv[0] == "reconstruct":  # segmentation[.KEY]: the --segmenter's own config (checked when it loads)
+                overrides = [o for o in overrides if not o.startswith(("segmentation.", "segmentation="))]
             if overrides and argv[0] in SET_TARGET:  # the --set keys exist in that command's config
                 cfgmod.from_dict(config_class(SET_TARGET[argv[0]]), {}, overrides)
             if overrides and argv[0] == "segment":

@@ -86,3 +86,23 @@ def test_views_with_entirely_empty_masks_are_ignored_not_carved(capture_dir):
     assert rec.n_objects == 2 and rec.info["ignored_empty_views"] == list(range(0, 16, 3))
     with pytest.raises(ReconstructionError, match="empty"):
         reconstruct(cap.with_masks(masks), ReconstructionConfig(grid_res=32, refine_iters=0, ignore_empty_views=False))
+
+
+def test_segmenter_settings_go_under_segmentation_in_config_and_set(capture_dir, tmp_path, capsys):
+    """One vocabulary: --config/--set configure the reconstruction and, under ``segmentation``, the segmenter."""
+    cfg = tmp_path / "rec.yaml"
+    cfg.write_text("grid_res: 32\nrefine_iters: 0\nsegmentation: {preset: mild, seed: 3}\n")
+    capsys.readouterr()
+    assert main(["reconstruct", str(capture_dir), "--out", str(tmp_path / "a"), "--segmenter", "noisy",
+                 "--config", str(cfg)]) == 0
+    assert json.loads(capsys.readouterr().out)["n_objects"] >= 2
+    seg_yaml = tmp_path / "noisy.yaml"
+    seg_yaml.write_text("preset: no_such_preset\n")
+    for extra in (["--set", "segmentation.preset=no_such_preset"], ["--set", f"segmentation={seg_yaml}"]):
+        assert main(["reconstruct", str(capture_dir), "--out", str(tmp_path / "b"), "--segmenter", "noisy",
+                     "--config", str(cfg), *extra]) == 2  # reached the segmenter's config: its error
+        assert "noisy.preset 'no_such_preset' is unknown" in capsys.readouterr().err
+    assert main(["reconstruct", str(capture_dir), "--out", str(tmp_path / "c"), "--config", str(cfg)]) == 2
+    assert "no --segmenter" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # the old flag is gone (argparse: unrecognized arguments)
+        main(["reconstruct", str(capture_dir), "--out", str(tmp_path / "d"), "--seg-config", str(seg_yaml)])

@@ -5,7 +5,8 @@ Examples::
     torm capture --scenario rw3 --out runs/rw3_s0
     torm reconstruct runs/rw3_s0 --out runs/rw3_s0_rec
     torm reconstruct runs/rw3_s0 --segmenter noisy --preset paper --set mode=paper --out runs/rw3_paper
-    torm reconstruct my_nerf_dataset --segmenter grounded_sam --seg-config models/gsam.yaml --out out/
+    torm reconstruct my_nerf_dataset --segmenter grounded_sam --set segmentation=models/gsam/grounded_sam.yaml \
+        --out out/
     torm reconstruct my_capture --no-table --holdout-every 5 --out out/    # a recorded capture of any scene
 
 Masks come from the capture (``mask_path`` per frame, or the alpha of RGBA images; soft greyscale masks
@@ -19,7 +20,10 @@ settings chosen from the capture, objects rejected by the checks) and ``metrics.
 ``heldout`` (with ``--holdout-every K``: every K-th view is left out of the input and the IoU on those
 views is reported) and, when the capture holds ideal depth, the paper's Table II depth metrics.
 ``--record FILE.rrd`` writes a rerun recording. ``--config``/``--set`` configure
-:class:`torm.reconstruction.ReconstructionConfig` (``torm config show reconstruct`` lists its keys).
+:class:`torm.reconstruction.ReconstructionConfig` (``torm config show reconstruct`` lists its keys) and, under
+``segmentation``, the ``--segmenter``'s own config: ``--set segmentation.KEY=VALUE``, or in the file a
+``segmentation:`` mapping or the path of a segmenter YAML (``--set segmentation=FILE``, e.g. the one
+``torm export-models`` writes; relative paths are relative to the file that names them).
 Threads: ``TORM_THREADS`` (default: the free cores, fewer when the machine is busy; the count used is
 logged and recorded).
 """
@@ -30,6 +34,7 @@ import argparse
 import dataclasses
 import json
 import logging
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,7 +54,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"{' | '.join(SEGMENTERS)} (default: the capture's masks; difference needs the capture's "
                         "reference views)")
     p.add_argument("--preset", default=None, help="noisy: error preset (default paper)")
-    p.add_argument("--seg-config", default=None, help="segmenter config YAML (e.g. ONNX model paths)")
     add_record(p, "the capture and the result")
     p.add_argument("--bounds", type=finite_float, nargs=6, default=None,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
@@ -105,6 +109,32 @@ def _evaluate(capture: Any, used: list[int], held: list[int], mesh: Any, referen
     return out
 
 
+def _segmenter_settings(args: argparse.Namespace, data: dict[str, Any]
+                        ) -> tuple[str | None, dict[str, Any] | None, list[str], list[str]]:
+    """Split the segmenter's settings off the reconstruction's: (its YAML path, its data, its overrides, the
+    reconstruction's overrides). ``data`` (the ``--config`` file) loses its ``segmentation`` entry."""
+    from torm import config as cfgmod
+    from torm.errors import ConfigError
+
+    seg_over = [o.removeprefix("segmentation.") for o in args.overrides if o.startswith("segmentation.")]
+    file_over = [o.partition("=")[2] for o in args.overrides if o.startswith("segmentation=")]
+    rest = [o for o in args.overrides if not o.startswith(("segmentation.", "segmentation="))]
+    entry = file_over[-1] if file_over else data.pop("segmentation", None)
+    seg_path, seg_data = None, None
+    if isinstance(entry, str):  # a segmenter YAML, relative to the config file that names it
+        base = Path(args.config).parent if args.config and not file_over else Path(".")
+        seg_path = str(base / entry)
+        seg_data = cfgmod.load_yaml(seg_path)
+    elif isinstance(entry, dict):
+        seg_path, seg_data = args.config, entry
+    elif entry is not None:
+        raise ConfigError(f"segmentation: a mapping of the segmenter's keys or the path of its YAML, got {entry!r}")
+    if (seg_data or seg_over) and not args.segmenter:
+        raise ConfigError("segmentation settings were given but no --segmenter: name the segmenter they configure "
+                          "(torm reconstruct --segmenter NAME), or drop them")
+    return seg_path, seg_data, seg_over, rest
+
+
 def run(args: argparse.Namespace) -> int:
     from torm import config as cfgmod
     from torm.capture.io import load_capture
@@ -118,20 +148,22 @@ def run(args: argparse.Namespace) -> int:
     input_ref = mask_reference(capture)
     gt_masks = capture.masks() if masks_are_ground_truth(capture) else None
     seg_summary = None
+    data = cfgmod.load_yaml(args.config) if args.config else {}
+    seg_path, seg_data, seg_over, overrides = _segmenter_settings(args, data)
     if args.segmenter:
         from torm.commands.segment import load_segmenter_config
         from torm.segmentation import make_segmenter
 
         over = [f"preset={args.preset}"] if args.preset and args.segmenter == "noisy" else []
-        seg = make_segmenter(args.segmenter, load_segmenter_config(args.segmenter, args.seg_config, over))
+        seg = make_segmenter(args.segmenter, load_segmenter_config(args.segmenter, seg_path, over + seg_over,
+                                                                   data=seg_data))
         res = seg.segment(capture)
         capture = res.apply(capture)
         seg_summary = res.summary()
     elif not capture.has_masks:
         raise CaptureError(f"{args.capture_dir} has no masks; pass --segmenter grounded_sam (or gt/noisy) or run "
                            "torm segment first")
-    data = cfgmod.load_yaml(args.config) if args.config else {}
-    cfg = cfgmod.from_dict(ReconstructionConfig, data, args.overrides, where=args.config or "ReconstructionConfig")
+    cfg = cfgmod.from_dict(ReconstructionConfig, data, overrides, where=args.config or "ReconstructionConfig")
     flags: dict[str, Any] = {}
     if args.bounds is not None:
         flags["bounds"] = (tuple(args.bounds[:3]), tuple(args.bounds[3:]))

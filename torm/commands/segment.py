@@ -64,14 +64,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def load_segmenter_config(name: str, path: str | None, overrides: list[str]) -> Any:
-    """The segmenter's frozen config from an optional YAML file (flat or under ``name:``) and overrides; relative
-    file paths in the file are relative to its folder."""
+def load_segmenter_config(name: str, path: str | None, overrides: list[str],
+                          data: dict[str, Any] | None = None) -> Any:
+    """The segmenter's frozen config from an optional YAML file (flat or under ``name:``), or ``data`` read from
+    ``path`` already, and overrides; relative file paths are relative to the file's folder."""
     from torm import config as cfgmod
     from torm.segmentation import resolve_config_paths, segmenter_config_class
 
     cls = segmenter_config_class(name)
-    data: dict[str, Any] = cfgmod.load_yaml(path) if path else {}
+    if data is None:
+        data = cfgmod.load_yaml(path) if path else {}
     if isinstance(data.get(name), dict):
         data = data[name]
     if path:  # file paths in the YAML are relative to its own folder (as torm export-models writes them)
