@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -53,3 +55,24 @@ def test_ppo_learns_a_bandit_whose_second_candidate_always_succeeds(tmp_path):
     assert curve[0]["steps"] == 0 and curve[-1]["steps"] == 2048 and secs > 0
     assert curve[-1]["heldout_successes"] >= 18, curve  # held-out rows: it picks candidate 1
     assert (tmp_path / "ppo.zip").is_file()
+
+
+def test_the_shipped_stress_policy_loads_and_acts_on_the_live_envs_observations():
+    """The committed PPO policy (docs/envs/grasp_select.md's five lines) reads the live env's observation space:
+    a change of the env's spaces that would break the shipped policy fails here."""
+    pytest.importorskip("stable_baselines3")
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    import torm.env  # noqa: F401  (registers the envs)
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks/results/policies/grasp_select_ppo_stress3.zip"
+    policy = PPO.load(str(path), device="cpu")
+    env = gym.make("torm/TormGraspSelectStress-v0")  # no world is built before reset
+    try:
+        assert policy.observation_space == env.observation_space and policy.action_space == env.action_space
+        obs = env.observation_space.sample()
+        action = int(policy.predict(obs, deterministic=True)[0])
+        assert env.action_space.contains(action)
+    finally:
+        env.close()
