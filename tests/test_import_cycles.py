@@ -48,15 +48,8 @@ def _all_runtime_nodes(body: list[ast.stmt]) -> list[ast.AST]:
     out: list[ast.AST] = []
     for stmt in _runtime_statements(body):
         out.append(stmt)
-        for child in ast.iter_child_nodes(stmt):
-            if isinstance(child, ast.stmt):
-                out += _all_runtime_nodes([child])
-            else:
-                out += list(ast.walk(child))
-        for field in ("body", "orelse", "finalbody", "handlers"):
-            for sub in getattr(stmt, field, None) or []:
-                if isinstance(sub, ast.ExceptHandler):
-                    out += _all_runtime_nodes(sub.body)
+        for child in ast.iter_child_nodes(stmt):  # nested statements keep the TYPE_CHECKING filter
+            out += _all_runtime_nodes([child]) if isinstance(child, ast.stmt) else list(ast.walk(child))
     return out
 
 

@@ -269,7 +269,7 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
                             recorder=recorder)
         perceptions = result.pop("perceptions", [])
         if judge is not None:
-            _score(judge, backend, attempts, perceptions, result, timings)
+            _score(judge, attempts, perceptions, result, timings)
         else:
             result["objects"] = _believed_rows(attempts)
     finally:
@@ -300,7 +300,7 @@ def run_trial(config: TrialConfig, backend: Any | None = None, record: Any = Non
     return {"summary": trial_summary(result), **result, "config": resolved}
 
 
-def _score(judge: Any, backend: Any, attempts: list[dict[str, Any]], perceptions: list[Perception],
+def _score(judge: Any, attempts: list[dict[str, Any]], perceptions: list[Perception],
            result: dict[str, Any], timings: dict[str, float]) -> None:
     """The judge's part of the record: rows per real object and per attempt, perception metrics, OCC."""
     first = perceptions[0] if perceptions else None

@@ -15,9 +15,7 @@ from typing import Any
 from sim.render.base import Renderer
 from torm.capture.render_settings import PbrSettings
 from torm.errors import UnknownNameError
-
-#: The renderer names (``capture.renderer``).
-RENDERER_NAMES = ("mujoco", "pbr")
+from torm.vocabulary import RENDERERS
 
 
 def make_renderer(name: str, world: Any, settings: PbrSettings | None = None, **kwargs: Any) -> Renderer:
@@ -30,7 +28,7 @@ def make_renderer(name: str, world: Any, settings: PbrSettings | None = None, **
         from sim.render.mitsuba_renderer import MitsubaRenderer
 
         return MitsubaRenderer(world, settings, **kwargs)
-    raise UnknownNameError("capture.renderer", name, RENDERER_NAMES)
+    raise UnknownNameError("capture.renderer", name, RENDERERS)
 
 
-__all__ = ["RENDERER_NAMES", "make_renderer"]
+__all__ = ["make_renderer"]

@@ -82,9 +82,6 @@ GROUP_ENV, GROUP_ROBOT, GROUP_GLASS, GROUP_COLLISION, GROUP_OPAQUE = 0, 1, 2, 3,
 #: Group used transiently to isolate one object for solo renders (never used by scenes).
 _GROUP_SOLO = 5
 
-#: Default workspace box (m) that the objects occupy (:data:`sim.workspace.WORKSPACE_BOUNDS`).
-DEFAULT_WORKSPACE_BOUNDS = WORKSPACE_BOUNDS
-
 
 @dataclass(frozen=True)
 class CameraRigConfig:
@@ -211,7 +208,7 @@ def workspace_coverage(
     config: CameraRigConfig, bounds: np.ndarray | None = None, n_views: int | None = None
 ) -> np.ndarray:
     """(V,) bool: whether all 8 corners of the box ``bounds`` (2, 3) m project inside each view's image."""
-    b = np.asarray(DEFAULT_WORKSPACE_BOUNDS if bounds is None else bounds, dtype=np.float64)
+    b = np.asarray(WORKSPACE_BOUNDS if bounds is None else bounds, dtype=np.float64)
     corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     K, W, H = config.K(), config.image_width, config.image_height
     ok = []

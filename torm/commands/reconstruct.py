@@ -111,28 +111,25 @@ def _evaluate(capture: Any, used: list[int], held: list[int], mesh: Any, referen
 
 def _segmenter_settings(args: argparse.Namespace, data: dict[str, Any]
                         ) -> tuple[str | None, dict[str, Any] | None, list[str], list[str]]:
-    """Split the segmenter's settings off the reconstruction's: (its YAML path, its data, its overrides, the
-    reconstruction's overrides). ``data`` (the ``--config`` file) loses its ``segmentation`` entry."""
-    from torm import config as cfgmod
+    """Split the segmenter's settings off the reconstruction's: (its YAML path, its data or None to read that path,
+    its overrides, the reconstruction's overrides). ``data`` (the ``--config`` file) loses its ``segmentation``."""
     from torm.errors import ConfigError
 
     seg_over = [o.removeprefix("segmentation.") for o in args.overrides if o.startswith("segmentation.")]
     file_over = [o.partition("=")[2] for o in args.overrides if o.startswith("segmentation=")]
     rest = [o for o in args.overrides if not o.startswith(("segmentation.", "segmentation="))]
     entry = file_over[-1] if file_over else data.pop("segmentation", None)
-    seg_path, seg_data = None, None
-    if isinstance(entry, str):  # a segmenter YAML, relative to the config file that names it
-        base = Path(args.config).parent if args.config and not file_over else Path(".")
-        seg_path = str(base / entry)
-        seg_data = cfgmod.load_yaml(seg_path)
-    elif isinstance(entry, dict):
-        seg_path, seg_data = args.config, entry
-    elif entry is not None:
+    if entry is not None and not isinstance(entry, (str, dict)):
         raise ConfigError(f"segmentation: a mapping of the segmenter's keys or the path of its YAML, got {entry!r}")
-    if (seg_data or seg_over) and not args.segmenter:
+    if (entry is not None or seg_over) and not args.segmenter:
         raise ConfigError("segmentation settings were given but no --segmenter: name the segmenter they configure "
                           "(torm reconstruct --segmenter NAME), or drop them")
-    return seg_path, seg_data, seg_over, rest
+    if isinstance(entry, dict):
+        return args.config, entry, seg_over, rest
+    if isinstance(entry, str):  # a segmenter YAML, relative to the config file that names it
+        base = Path(args.config).parent if args.config and not file_over else Path(".")
+        return str(base / entry), None, seg_over, rest
+    return None, None, seg_over, rest
 
 
 def run(args: argparse.Namespace) -> int:
