@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import statistics
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -46,6 +48,42 @@ from benchmarks._common import (  # noqa: E402
 RENDER = Path(__file__).resolve().parents[1] / "tests" / "data" / "learned_seg_view.png"
 
 
+def _rss_gb(field: str) -> float:
+    """``VmRSS`` (now) or ``VmHWM`` (peak) of this process from /proc/self/status, GB (1e9 bytes)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024 / 1e9
+    return float("nan")
+
+
+def time_views(cfg: dict, views: int) -> dict:
+    """Run in a fresh process: load the segmenter, segment the render ``views`` times; stage seconds per view, the
+    process's resident memory before loading, after loading and at its peak (GB), boxes in the last view."""
+    from torm.segmentation.grounded_sam import GroundedSAMConfig, GroundedSAMSegmenter
+
+    rgb = cv2.resize(cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB), (1280, 720))  # the D455's size
+    mem = {"rss_before_load_gb": _rss_gb("VmRSS")}
+    seg = GroundedSAMSegmenter(GroundedSAMConfig(**cfg))
+    mem["rss_after_load_gb"] = _rss_gb("VmRSS")
+    per: dict[str, list[float]] = {"boxes": [], "sam_encoder": [], "sam_decoder_per_box": [], "view": []}
+    busy0, own0, wall0 = cpu_busy_s(), own_cpu_s(), time.perf_counter()
+    dets: tuple = ()
+    for _ in range(views):
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        _, dets = seg.segment_image(rgb, timings)
+        per["view"].append(time.perf_counter() - t)
+        per["boxes"].append(timings["gdino"])
+        per["sam_encoder"].append(timings.get("sam_encoder", 0.0))
+        per["sam_decoder_per_box"].append(timings.get("sam_decoder", 0.0) / max(len(dets), 1))
+    wall = time.perf_counter() - wall0
+    mem["peak_rss_gb"] = _rss_gb("VmHWM")
+    # cores other processes kept busy while the views were timed (the load average lags by minutes)
+    other = round(max(0.0, (cpu_busy_s() - busy0) - (own_cpu_s() - own0)) / wall, 2)
+    return {"per": per, "memory": {k: round(v, 2) for k, v in mem.items()}, "boxes_per_view": len(dets),
+            "other_processes_cores": other}
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tiny", action="store_true", help="small configs (a check of the script, not a result)")
@@ -54,6 +92,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--sam-kind", choices=("sam", "sam2"), default="sam", help="SAM ViT-B or SAM 2.1 Hiera-Tiny")
     ap.add_argument("--boxes", choices=("gdino", "learned"), default="gdino",
                     help="box prompts from Grounding DINO or from torm's learned segmenter (no Grounding DINO)")
+    ap.add_argument("--no-arena", action="store_true",
+                    help="onnxruntime without its CPU memory arena (grounded_sam memory_arena: false)")
     ap.add_argument("--name", default=None, help="result file stem (default gsam_cpu / sam2_cpu, _tiny with --tiny)")
     args = ap.parse_args(argv)
     threads = setup(args.threads or THREADS)
@@ -65,11 +105,9 @@ def main(argv: list[str] | None = None) -> dict:
         load_sam2,
         write_vocab,
     )
-    from torm.segmentation.grounded_sam import GroundedSAMConfig, GroundedSAMSegmenter
     from torm.segmentation.tokenizer import WordPieceTokenizer, grounding_text_inputs
 
     ctx = context(vars(args))
-    rgb = cv2.resize(cv2.cvtColor(cv2.imread(str(RENDER)), cv2.COLOR_BGR2RGB), (1280, 720))  # the D455's size
     out: dict = {"context": ctx, "tiny": args.tiny, "onnxruntime_threads": threads, "sam_kind": args.sam_kind,
                  "boxes": args.boxes}
     gdino = args.boxes == "gdino"
@@ -101,27 +139,23 @@ def main(argv: list[str] | None = None) -> dict:
         del g, s
         out["exports"] = {m.path.name: {"export_s": m.card["export_s"], "megabytes": round(m.card["bytes"] / 1e6, 1)}
                           for m in files}
-        seg = GroundedSAMSegmenter(GroundedSAMConfig(sam_encoder=str(enc.path), sam_decoder=str(dec.path),
-                                                     max_detections=5, threads=threads, **cfg))
-        per: dict[str, list[float]] = {"boxes": [], "sam_encoder": [], "sam_decoder_per_box": [], "view": []}
-        busy0, own0, wall0 = cpu_busy_s(), own_cpu_s(), time.perf_counter()
-        for _ in range(args.views):
-            timings: dict[str, float] = {}
-            t = time.perf_counter()
-            _, dets = seg.segment_image(rgb, timings)
-            per["view"].append(time.perf_counter() - t)
-            per["boxes"].append(timings["gdino"])
-            per["sam_encoder"].append(timings.get("sam_encoder", 0.0))
-            per["sam_decoder_per_box"].append(timings.get("sam_decoder", 0.0) / max(len(dets), 1))
-        out["boxes_per_view"] = len(dets)
-        wall = time.perf_counter() - wall0
-        # cores other processes kept busy while the views were timed (the load average lags by minutes)
-        out["other_processes_cores"] = round(max(0.0, (cpu_busy_s() - busy0) - (own_cpu_s() - own0)) / wall, 2)
+        cfg = {"sam_encoder": str(enc.path), "sam_decoder": str(dec.path), "max_detections": 5, "threads": threads,
+               "memory_arena": not args.no_arena, **cfg}
+        # a fresh process: its peak resident memory is the segmenter's alone (not the export's)
+        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            timed = pool.submit(time_views, cfg, args.views).result()
+        per = timed["per"]
+        out["memory"] = timed["memory"]
+        out["model_files_gb"] = round(sum(m.card["bytes"] for m in files) / 1e9, 2)
+        out["boxes_per_view"] = timed["boxes_per_view"]
+        out["other_processes_cores"] = timed["other_processes_cores"]
+        out["memory_arena"] = not args.no_arena
     med = {k: round(statistics.median(v), 3) for k, v in per.items()}
     out["seconds_per_view_median"] = med
     out["capture_50_views_min"] = round(50 * med["view"] / 60, 1)
     out["load_avg_end"] = list(os.getloadavg())
     stem = "gsam_cpu" if args.sam_kind == "sam" and gdino else f"{args.sam_kind}_{args.boxes}_cpu"
+    stem += "_no_arena" if args.no_arena else ""
     name = args.name or (f"{stem}_tiny" if args.tiny else stem)
     write_json(RESULTS / f"{name}.json", out)
     rows = [[k, f"{v:.2f}"] for k, v in med.items()]
@@ -142,6 +176,13 @@ def main(argv: list[str] | None = None) -> dict:
           md_table(["export", "seconds", "MB"], [[k, str(v["export_s"]), str(v["megabytes"])]
                                                  for k, v in out["exports"].items()]), "",
           md_table(["stage", "seconds per view (median)"], rows), "",
+          md_table(["memory (GB, 1e9 bytes)", "value"], [
+              ["ONNX files on disk", f"{out['model_files_gb']:.2f}"],
+              ["process before loading (python, numpy, onnxruntime)", f"{out['memory']['rss_before_load_gb']:.2f}"],
+              ["after loading the sessions", f"{out['memory']['rss_after_load_gb']:.2f}"],
+              ["**peak while segmenting**", f"**{out['memory']['peak_rss_gb']:.2f}**"]]), "",
+          f"onnxruntime's CPU memory arena: {'on (default)' if out['memory_arena'] else 'off (memory_arena: false)'}; "
+          "the views ran in a fresh process, so the peak is the segmenter's, not the export's.", "",
           f"A 50-view capture: about **{out['capture_50_views_min']} minutes** on this machine "
           f"(other processes' CPU while the views ran: {out['other_processes_cores']} cores"
           f"{note if contended else ''}).",

@@ -120,6 +120,32 @@ def test_train_config_refuses_what_a_photo_encoder_cannot_do():
     assert TrainConfig().stride == 16
 
 
+def test_transparent_iou_scores_the_class_heads_glass_pixels_and_needs_a_class_head(monkeypatch):
+    """val_scores' transparent_iou: the pixels called foreground AND transparent against the glass pixels; an opaque
+    object found as foreground but classed opaque costs nothing, classed transparent it is a false positive."""
+    from torm.segmentation.training import train as tr
+
+    mask = np.zeros((1, 4, 8), np.int32)
+    mask[0, :, :4] = 1  # glass on the left half
+    mask[0, :, 4:6] = 2  # an opaque object
+    glass = (mask == 1).astype(np.uint8)
+    maps = np.zeros((1, 6, 4, 8), np.float32)
+    maps[0, 0] = mask[0] > 0  # both found as foreground
+    maps[0, 5, :, :4] = 1.0  # the glass called transparent
+
+    monkeypatch.setattr(tr, "predict", lambda net, rgb, ref_nxhxwx3=None: maps)
+    assert tr.val_scores(None, np.zeros((1, 4, 8, 3)), mask, min_visible_px=1, transparent=glass)[
+        "transparent_iou"] == pytest.approx(1.0)
+    maps[0, 5, :, 4:6] = 1.0  # the opaque object called transparent too: IoU 16 / 24
+    assert tr.val_scores(None, np.zeros((1, 4, 8, 3)), mask, min_visible_px=1, transparent=glass)[
+        "transparent_iou"] == pytest.approx(16 / 24)
+    assert "transparent_iou" not in tr.val_scores(None, np.zeros((1, 4, 8, 3)), mask, min_visible_px=1)
+    with pytest.raises(ConfigError, match="needs train.classes"):
+        tr.TrainConfig(select_on="transparent_iou")
+    with pytest.raises(ConfigError, match="valid choices: fg_iou, object_iou, transparent_iou"):
+        tr.TrainConfig(select_on="class_acc")
+
+
 def test_transparent_maps_follow_each_scenes_materials():
     from torm.segmentation.training.dataset import transparent_maps
 

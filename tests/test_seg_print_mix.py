@@ -103,3 +103,39 @@ def test_a_print_mix_scene_shows_prints_and_labels_only_glass():
     assert kinds & {"mug", "book"} and mats & {"textured", "glossy_print"}
     assert set(np.unique(mask)) <= {0, 1} and 0 < (mask > 0).sum() <= (mask_p > 0).sum()
     assert rgb.std() > 5
+
+
+def test_object_distractors_are_opaque_instances_after_the_worlds_objects_and_books_stay_background():
+    """Segmenter v7's data: the recipe's ``object_distractors`` kinds get instance ids after the world's objects (the
+    class head's opaque class); other kinds (books) and the room stay 0. The same draw without the labels renders
+    the same pixels."""
+    pytest.importorskip("mitsuba")
+    from tests.render_helpers import one_glass_cylinder_view
+    from torm.segmentation.training.render import SceneLook, render_pbr
+
+    world, T, K = one_glass_cylinder_view(0.25)
+    kinds = ("can", "box", "blob", "twin", "mug")
+    look = SceneLook(n_distractors=8, clutter_seed=7, mix="print")
+    rgb0, mask0, _ = render_pbr(world, T[None], K[None], 80, 60, np.random.default_rng(0), spp=4, look=look)
+    rgb, mask, info = render_pbr(world, T[None], K[None], 80, 60, np.random.default_rng(0), spp=4,
+                                 look=SceneLook(n_distractors=8, clutter_seed=7, mix="print", object_kinds=kinds))
+    drawn = info["distractors"]
+    labelled = info["object_distractors"]
+    assert len(labelled) == sum(d["kind"] in kinds for d in drawn) > 0
+    assert any(d["kind"] == "book" for d in drawn)  # this draw holds a book: it must stay background
+    n = len(world.objects)
+    ids = set(np.unique(mask).tolist())
+    assert ids <= set(range(n + len(labelled) + 1)) and ids - set(range(n + 1))  # some labelled distractor is seen
+    assert np.array_equal(mask[mask <= n] > 0, mask0[mask <= n] > 0)  # the glass keeps its pixels and ids
+    assert np.array_equal(rgb, rgb0)
+
+
+def test_recipe_refuses_unknown_object_distractor_kinds_and_glass_only_labels():
+    from torm.errors import ConfigError
+    from torm.segmentation.training.dataset import DataRecipe
+
+    with pytest.raises(ConfigError, match="unknown kind.*valid choices: can, box"):
+        DataRecipe(object_distractors=("cup",))
+    with pytest.raises(ConfigError, match="label_opaque"):
+        DataRecipe(object_distractors=("mug",), label_opaque=False)
+    assert DataRecipe(object_distractors=("mug", "can")).object_distractors == ("mug", "can")

@@ -240,7 +240,8 @@ class MitsubaRenderer:
     # ------------------------------------------------------------------------------------------- render
     def render(self, cameras: Sequence[RenderCamera], *, rgb: bool = True, instance: bool = True,
                extra_emitters: Mapping[str, dict] | None = None, env_scale: float = 1.0, area_scale: float = 1.0,
-               exposure: float | None = None, noise_seed: int = 0) -> list[RenderedView]:
+               exposure: float | None = None, noise_seed: int = 0,
+               extra_instances: Mapping[str, int] | None = None) -> list[RenderedView]:
         """Render ``cameras`` of the world's current state.
 
         Args:
@@ -252,6 +253,8 @@ class MitsubaRenderer:
             exposure: None = ``settings.exposure``; 0 = auto; > 0 = fixed linear gain.
             noise_seed: mixed into each view's sampler seed: another value gives independent render noise for the
                 same view (a reference pass over the empty workspace uses 1).
+            extra_instances: ``extra_emitters`` keys that the instance pass labels, with their ids (> the world's
+                object ids; a training set's distractors labelled as objects).
 
         Cached views (same inputs, see :mod:`sim.render.cache`) are loaded instead of rendered.
         """
@@ -267,6 +270,8 @@ class MitsubaRenderer:
                                                area_scale=area_scale, exposure=expo)
                     if noise_seed:
                         inputs["noise_seed"] = int(noise_seed)
+                    if extra_instances:
+                        inputs["extra_instances"] = dict(extra_instances)
                     key = cache_key(inputs)
                 except TypeError as exc:
                     log.info("render cache off for this call: %s", exc)
@@ -287,7 +292,9 @@ class MitsubaRenderer:
 
                 interp = cv2.INTER_AREA if img.shape[0] > cam.height else cv2.INTER_LINEAR
                 img = cv2.resize(img, (cam.width, cam.height), interpolation=interp)
-            ids = instance_ids(pbr, mi_scene, cam) if instance else None
+            id_scene = pbr if not extra_instances else replace(
+                pbr, shape_instances={**pbr.shape_instances, **extra_instances})
+            ids = instance_ids(id_scene, mi_scene, cam) if instance else None
             dt = time.perf_counter() - t0
             self.stats["rendered"] += 1
             self.stats["render_s"] += dt

@@ -240,7 +240,7 @@ def prompt_scenario_targets(seg: Any, scenario: str) -> tuple[str, ...]:
     if len(can) < len(targets):
         logging.getLogger(__name__).warning(
             "scenario %s targets %s, but %s has no class head and cannot be prompted for %s objects (it marks what "
-            "it was trained on; learned.model=v6 picks both classes)", scenario, ", ".join(targets),
+            "it was trained on; learned.model=v7 picks both classes)", scenario, ", ".join(targets),
             seg.config.model_path.name, ", ".join(t for t in targets if t not in can))
     if can and can != tuple(seg.config.classes):
         seg.config = dataclasses.replace(seg.config, classes=can)

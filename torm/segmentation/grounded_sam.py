@@ -157,6 +157,7 @@ class GroundedSAMConfig:
     threads: int = 0
     box_source: str = "gdino"
     learned: dict[str, Any] = field(default_factory=dict)
+    memory_arena: bool = True
 
     def __post_init__(self) -> None:
         if self.box_source not in BOX_SOURCES:
@@ -301,7 +302,7 @@ class GroundedSAMSegmenter(Segmenter):
         providers = list(c.providers) or None
         enc_in, enc_out = sam_encoder_specs(c.sam_image_size)
         self.sam_encoder = open_session(c.sam_encoder, "grounded_sam.sam_encoder", enc_in, enc_out, providers,
-                                        c.threads)
+                                        c.threads, c.memory_arena)
         self.sam_decoder = open_session(c.sam_decoder, "grounded_sam.sam_decoder",
                                         SAM_DECODER_INPUTS + SAM2_DECODER_INPUTS, SAM_DECODER_OUTPUTS, providers,
                                         c.threads)
@@ -327,7 +328,7 @@ class GroundedSAMSegmenter(Segmenter):
                                  "writes beside the Grounding DINO export (bert-base-uncased's vocabulary)")
         self.tokenizer = WordPieceTokenizer.from_file(c.bert_vocab)
         self.gdino: BoundSession | None = open_session(c.gdino_model, "grounded_sam.gdino_model", GDINO_INPUTS,
-                                                       GDINO_OUTPUTS, providers, c.threads)
+                                                       GDINO_OUTPUTS, providers, c.threads, c.memory_arena)
         #: the export's model card (``<gdino_model>.json``, written by ``torm export-models``), or None
         self.gdino_card = read_card(c.gdino_model)
         if self.gdino_card is None:

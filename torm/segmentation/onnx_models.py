@@ -120,12 +120,14 @@ def open_session(
     outputs: tuple[TensorSpec, ...],
     providers: list[str] | None = None,
     threads: int = 0,
+    mem_arena: bool = True,
 ) -> BoundSession:
     """Load ``path`` with onnxruntime and bind its tensors to the expected signature.
 
     Raises ModelFileError when the path is unset or missing, the file is not a loadable ONNX model,
     an expected tensor is absent or has the wrong rank/static size, or the model needs an input that
-    torm does not feed.
+    torm does not feed. ``mem_arena`` False: onnxruntime's CPU memory arena and memory-pattern planning are off
+    (each tensor is freed when it dies: a lower peak for large graphs, at some speed).
     """
     import onnxruntime as ort
 
@@ -145,6 +147,9 @@ def open_session(
         if threads < (os.cpu_count() or 1):  # sharing the machine: idle threads must not spin on the others' cores
             opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
     opts.log_severity_level = 3
+    if not mem_arena:
+        opts.enable_cpu_mem_arena = False
+        opts.enable_mem_pattern = False
     try:
         sess = ort.InferenceSession(str(p), sess_options=opts, providers=providers or default_providers())
     except Exception as exc:

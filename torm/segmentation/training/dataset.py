@@ -105,6 +105,9 @@ class DataRecipe:
     label_opaque: bool = True  # False: opaque objects are background in the masks (only glass is labelled)
     renderer_weights: dict[str, float] = dataclasses.field(default_factory=dict)  # per-shard renderer draw
     distractor_mix: str = "v4"  # kinds and materials of the look-alikes (training/clutter.py MIXES; v5: "print")
+    # distractor kinds labelled as opaque objects (instances of the opaque class) instead of background: things
+    # standing on the table that a prompt for opaque objects should find (segmenter v7: every kind but ``book``)
+    object_distractors: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         from torm.segmentation.training.render import RENDERERS, SHARD_RENDERERS
@@ -123,6 +126,14 @@ class DataRecipe:
 
         if self.distractor_mix not in MIXES:
             raise ConfigError(f"data.distractor_mix {self.distractor_mix!r}; valid choices: {', '.join(MIXES)}")
+        from torm.segmentation.training.clutter import KINDS
+
+        bad_k = sorted(set(self.object_distractors) - set(KINDS))
+        if bad_k:
+            raise ConfigError(f"data.object_distractors: unknown kind(s) {bad_k}; valid choices: {', '.join(KINDS)}")
+        if self.object_distractors and not self.label_opaque:
+            raise ConfigError("data.object_distractors labels distractors as opaque objects; it needs "
+                              "data.label_opaque: true")
         dlo, dhi = self.distractors_per_scene
         if not 0 <= dlo <= dhi <= 20:
             raise ConfigError("data.distractors_per_scene must be (lo, hi) with 0 <= lo <= hi <= 20")
@@ -328,7 +339,8 @@ def generate_shard(recipe: DataRecipe, split: str, shard: int, root: Path) -> Pa
         Ks.append(K_v)
         scene_idx += [len(meta)] * len(Ts)
         meta.append({"seed": seed, "objects": list(objs), "spacing": spacing, "fixture": fixture,
-                     "materials": ["glass" if o.transparent else "opaque" for o in world.objects],
+                     "materials": ["glass" if o.transparent else "opaque" for o in world.objects]
+                     + ["opaque"] * len(look_info.get("object_distractors", [])),
                      "renderer": renderer, **look_info})
     tmp = path.with_suffix(".tmp.npz")
     np.savez_compressed(tmp, rgb=np.concatenate(rgbs), mask=np.concatenate(masks), T_world_cam=np.concatenate(poses),

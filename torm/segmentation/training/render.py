@@ -43,6 +43,7 @@ class SceneLook:
     reference: bool = False  # the empty-workspace pass: independent render noise, some distractors removed
     drop_distractors: float = 0.0  # reference pass: probability that a distractor is not there
     mix: str = "v4"  # distractor kinds and materials (training/clutter.py MIXES)
+    object_kinds: tuple[str, ...] = ()  # distractor kinds labelled as opaque objects (ids after the world's)
 
     @classmethod
     def draw(cls, recipe: Any, rng: np.random.Generator) -> SceneLook:
@@ -53,7 +54,8 @@ class SceneLook:
         env, area = 1.0, 1.0
         if rng.random() < recipe.lighting_fraction:  # dim room + strong panel, bright room + no panel, ...
             env, area = float(np.exp(rng.uniform(np.log(0.2), np.log(2.0)))), float(rng.choice([0.0, 0.3, 1.0, 4.0]))
-        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)), mix=recipe.distractor_mix)
+        return cls(n, room, env, area, int(rng.integers(0, 2**31 - 1)), mix=recipe.distractor_mix,
+                   object_kinds=tuple(getattr(recipe, "object_distractors", ())))
 
     @property
     def plain(self) -> bool:
@@ -133,7 +135,7 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
     r = make_renderer("pbr", world, PbrSettings(spp=spp, cache=False, threads=threads, variant=variant))
     info: dict[str, Any] = {"variant": variant}
     try:
-        extra = None
+        extra, extra_ids = None, None
         if look.n_distractors or look.room:
             import mitsuba as mi
 
@@ -152,10 +154,16 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
                     if drop.random() < look.drop_distractors:
                         del extra[k]
             info.update(drawn)
+            if look.object_kinds and not look.reference:  # labelled distractors: ids after the world's objects
+                labelled = [k for k, d in zip(_distractor_keys(extra), drawn["distractors"], strict=True)
+                            if d["kind"] in look.object_kinds]
+                extra_ids = {k: len(world.objects) + 1 + j for j, k in enumerate(labelled)}
+                info["object_distractors"] = labelled
         if not look.plain:
             info.update(env_scale=look.env_scale, area_scale=look.area_scale)
         views = r.render(cams, rgb=True, instance=extra is not None and not look.reference, extra_emitters=extra,
-                         env_scale=look.env_scale, area_scale=look.area_scale, noise_seed=int(look.reference))
+                         env_scale=look.env_scale, area_scale=look.area_scale, noise_seed=int(look.reference),
+                         extra_instances=extra_ids)
         rgb = np.stack([v.rgb for v in views])
         if look.reference:  # no masks of an empty workspace
             return rgb, np.zeros(rgb.shape[:3], np.int32), info
@@ -168,6 +176,11 @@ def render_pbr(world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, w
         masks = np.stack([rig.render_arrays(T, K, ("mask",))["mask"] for T, K in
                           zip(T_world_cam_vx4x4, K_vx3x3, strict=True)])
     return rgb, masks.astype(np.int32), info
+
+
+def _distractor_keys(entries: dict[str, Any]) -> list[str]:
+    """The ``distractor_<i>`` keys of clutter entries in draw order (one per drawn distractor)."""
+    return sorted((k for k in entries if k.startswith("distractor_")), key=lambda k: int(k.rsplit("_", 1)[1]))
 
 
 def render_scene(renderer: str, world: Any, T_world_cam_vx4x4: np.ndarray, K_vx3x3: np.ndarray, width: int,

@@ -125,9 +125,13 @@ def run(spec: SegTrainingSpec, data_dir: Path, work_dir: Path, out_path: Path, p
     if export_only:
         summary = checkpoint_summary(work_dir, spec.train)
     else:
-        tt = transparent_maps(tr["mask"], tr["scene"], tr["meta"]) if spec.train.classes else None
+        tt = vt = None
+        if spec.train.classes:
+            tt = transparent_maps(tr["mask"], tr["scene"], tr["meta"])
+            vt = transparent_maps(va["mask"], va["scene"], va["meta"])
         summary = train(spec.train, tr["rgb"], tr["mask"], va["rgb"], va["mask"], work_dir, progress=progress,
-                        train_ref=tr.get("reference"), val_ref=va.get("reference"), train_transparent=tt)
+                        train_ref=tr.get("reference"), val_ref=va.get("reference"), train_transparent=tt,
+                        val_transparent=vt)
     net = load_best(work_dir, spec.train)
     export_onnx(net, out_path)
     card: dict[str, Any] = {

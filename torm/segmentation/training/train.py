@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 
 
 #: validation scores a run can select its exported checkpoint on
-SELECT_ON = ("fg_iou", "object_iou")
+SELECT_ON = ("fg_iou", "object_iou", "transparent_iou")
 #: data splits a run can select its checkpoint on (see :mod:`torm.segmentation.training.dataset`)
 VAL_SPLITS = ("val", "val_rig")
 #: parts of the network a run can hold fixed (``TrainConfig.freeze``)
@@ -85,7 +85,9 @@ class TrainConfig:
     centre_loss_weight: float = 100.0
     offset_loss_weight: float = 1.0
     freeze_bn: bool = False  # BatchNorms in eval mode while training (needed after an .onnx init_from)
-    select_on: str = "fg_iou"  # the validation score that picks the exported checkpoint: fg_iou | object_iou
+    # the validation score that picks the exported checkpoint: fg_iou | object_iou | transparent_iou (class head:
+    # the union IoU of the pixels it calls transparent objects, what a glass prompt reads; needs train.classes)
+    select_on: str = "fg_iou"
     val_split: str = "val"  # the data split that score is measured on: val | val_rig (the rig's full frames)
     # segmenter v4 (training/augment.py); the defaults reproduce v3's augmentation exactly
     zoom_range: tuple[float, float] = (1.0, 1.0)  # magnification s drawn log-uniformly; s > 1 crops and enlarges
@@ -132,6 +134,8 @@ class TrainConfig:
             raise ConfigError("train: need lr > 0 and threads >= 1")
         if self.select_on not in SELECT_ON:
             raise ConfigError(f"train.select_on {self.select_on!r}; valid choices: {', '.join(SELECT_ON)}")
+        if self.select_on == "transparent_iou" and not self.classes:
+            raise ConfigError("train.select_on transparent_iou scores the class head; it needs train.classes: true")
         if self.val_split not in VAL_SPLITS:
             raise ConfigError(f"train.val_split {self.val_split!r}; valid choices: {', '.join(VAL_SPLITS)}")
         if self.centre_sigma_px <= 0 or self.centre_loss_weight < 0 or self.offset_loss_weight < 0:
@@ -281,26 +285,33 @@ def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4, ref_nxhxwx3: 
     return out
 
 
+def _mean_iou(p_nxhxw: np.ndarray, g_nxhxw: np.ndarray) -> float:
+    """Mean per-image IoU of two boolean stacks (an image where both are empty scores 1)."""
+    inter = (p_nxhxw & g_nxhxw).reshape(len(g_nxhxw), -1).sum(1)
+    union = (p_nxhxw | g_nxhxw).reshape(len(g_nxhxw), -1).sum(1)
+    return float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
+
+
 def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: int = 100,
-               ref: np.ndarray | None = None) -> dict[str, float]:
+               ref: np.ndarray | None = None, transparent: np.ndarray | None = None) -> dict[str, float]:
     """``fg_iou``: mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1); ``object_iou``: mean over
     (view, GT object with >= ``min_visible_px`` px) of the best IoU with an instance extracted by
-    :func:`torm.segmentation.instances.instances_from_maps` with its default settings."""
+    :func:`torm.segmentation.instances.instances_from_maps` with its default settings. With ``transparent``
+    ((N, H, W) 1 on transparent objects' pixels) and a class head, ``transparent_iou``: the mean per-image IoU of
+    the pixels called foreground and transparent (both > 0.5) against them (what a glass prompt reads)."""
     from torm.segmentation.instances import instances_from_maps
     from torm.segmentation.training.evaluate import _ious
 
     maps = predict(net, rgb, ref_nxhxwx3=ref)
-    p = maps[:, 0] > 0.5
-    g = mask > 0
-    inter = (p & g).reshape(len(g), -1).sum(1)
-    union = (p | g).reshape(len(g), -1).sum(1)
     best: list[float] = []
     for m, gt in zip(maps, mask, strict=True):
         pids, _gids, iou, garea = _ious(instances_from_maps(m[:5])[0], gt)
         per_gt = iou.max(axis=0) if pids else np.zeros(len(garea))
         best += [float(b) for b, a in zip(per_gt, garea, strict=True) if a >= min_visible_px]
-    return {"fg_iou": float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0))),
-            "object_iou": float(np.mean(best)) if best else 1.0}
+    out = {"fg_iou": _mean_iou(maps[:, 0] > 0.5, mask > 0), "object_iou": float(np.mean(best)) if best else 1.0}
+    if transparent is not None and maps.shape[1] > 5:
+        out["transparent_iou"] = _mean_iou((maps[:, 0] > 0.5) & (maps[:, 5] > 0.5), transparent > 0)
+    return out
 
 
 def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 320)) -> Path:
@@ -323,14 +334,15 @@ def export_onnx(net: SegUNet, path: Path, example_hw: tuple[int, int] = (192, 32
 def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_rgb: np.ndarray,
           val_mask: np.ndarray, workdir: Path, progress: bool = True, train_ref: np.ndarray | None = None,
           val_ref: np.ndarray | None = None, rehearsal: tuple[np.ndarray, np.ndarray] | None = None,
-          train_transparent: np.ndarray | None = None) -> dict[str, Any]:
+          train_transparent: np.ndarray | None = None, val_transparent: np.ndarray | None = None) -> dict[str, Any]:
     """Train (resuming from ``workdir/checkpoint.pt``); the best-validation weights go to ``workdir/best.pt``.
     ``train_ref`` / ``val_ref``: the reference views (reference mode, ``cfg.reference``). ``rehearsal``: (rgb
     (M, h, w, 3) uint8, instance mask (M, h, w)) views that ``cfg.rehearsal_fraction`` of every batch comes from
     (a fine-tune's renders of its base model's recipe: the few frames it adapts to do not erase what it knew).
 
     ``train_transparent``: (N, h, w) uint8, 1 on pixels of transparent objects (the class head's target, needed
-    with ``cfg.classes``; :func:`~torm.segmentation.training.dataset.transparent_maps`).
+    with ``cfg.classes``; :func:`~torm.segmentation.training.dataset.transparent_maps`); ``val_transparent`` the
+    same for the validation views (needed by ``select_on: transparent_iou``).
     Returns a summary: steps, wall time, best validation foreground IoU and its step, the loss history.
     """
     from tqdm import tqdm
@@ -350,6 +362,8 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
     else:
         groups = [{"params": [p for p in net.parameters() if p.requires_grad], "lr_scale": 1.0}]
     opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if cfg.select_on == "transparent_iou" and val_transparent is None:
+        raise ConfigError("train.select_on transparent_iou needs the validation views' transparent maps")
     if cfg.classes and train_transparent is None:
         raise ConfigError("train.classes is set but no class targets were given (render with data.label_opaque=true)")
     rng = np.random.default_rng(cfg.seed)
@@ -451,10 +465,11 @@ def train(cfg: TrainConfig, train_rgb: np.ndarray, train_mask: np.ndarray, val_r
         bar.update(1)
         step = state["step"]
         if step % cfg.val_every == 0 or step == cfg.steps:
-            sc = val_scores(net, val_rgb, val_mask, ref=val_ref if cfg.reference else None)
+            sc = val_scores(net, val_rgb, val_mask, ref=val_ref if cfg.reference else None,
+                            transparent=val_transparent)
             iou = sc[cfg.select_on]
-            state["history"].append({"step": step, "loss": float(np.mean(running)), "val_fg_iou": sc["fg_iou"],
-                                     "val_object_iou": sc["object_iou"], **parts})
+            state["history"].append({"step": step, "loss": float(np.mean(running)),
+                                     **{f"val_{k}": v for k, v in sc.items()}, **parts})
             running = []
             log.info("step %d: loss %.4f, val fg IoU %.4f, val object IoU %.4f", step, state["history"][-1]["loss"],
                      sc["fg_iou"], sc["object_iou"])
