@@ -30,12 +30,14 @@ from benchmarks._common import RESULTS, check_tag, context, context_md, md_table
 SPLITS = ("test_layouts", "test_shapes", "test_fixtures")
 
 
-def score(model: str, data: Path, threads: int, classes: str = "transparent") -> dict[str, Any]:
+def score(model: str, data: Path, threads: int, classes: str = "transparent", by_renderer: bool = False
+          ) -> dict[str, Any]:
     """Metrics of ``model`` (shipped short name or .onnx path) on every test split rendered in ``data``.
 
     ``classes`` ``transparent``: the ground truth keeps the glass objects only (opaque ones become background) and a
     class-head model is prompted for ``transparent``; ``all``: every labelled object, a class-head model prompted
-    for every class (a model without the head reads as it is)."""
+    for every class (a model without the head reads as it is). ``by_renderer``: each split's views are also scored
+    per renderer that drew them (rows ``test_layouts (pbr)`` ...) where a split mixes renderers."""
     import numpy as np
 
     from torm.segmentation.learned import CLASSES, LearnedConfig, LearnedSegmenter, model_fingerprint
@@ -55,13 +57,24 @@ def score(model: str, data: Path, threads: int, classes: str = "transparent") ->
         if classes == "transparent":  # glass-only ground truth (a no-op on data rendered with label_opaque false)
             views["mask"] = np.where(transparent_maps(views["mask"], views["scene"], views["meta"]) > 0,
                                      views["mask"], 0).astype(views["mask"].dtype)
-        t = time.perf_counter()
-        r = evaluate(lambda im: seg.segment_image(im)[0], views, held)
-        out["splits"][split] = {"views": r["views"], "silhouette_iou": r["silhouette_iou_mean"],
-                                "object_iou": r["object"]["iou_mean"], "miss_rate": r["object"]["miss_rate"],
-                                "false_positives_per_view": r["false_positives_per_view"],
-                                "seconds_per_view": (time.perf_counter() - t) / max(r["views"], 1)}
+        renderer_n = np.array([views["meta"][int(sc)].get("renderer", "?") for sc in views["scene"]])
+        parts = [(split, np.arange(len(renderer_n)))]
+        if by_renderer and len(set(renderer_n)) > 1:
+            parts += [(f"{split} ({r})", np.flatnonzero(renderer_n == r)) for r in sorted(set(renderer_n))]
+        for name, idx in parts:
+            t = time.perf_counter()
+            r = evaluate(lambda im: seg.segment_image(im)[0], view_subset(views, idx), held)
+            out["splits"][name] = {"views": r["views"], "silhouette_iou": r["silhouette_iou_mean"],
+                                   "object_iou": r["object"]["iou_mean"], "miss_rate": r["object"]["miss_rate"],
+                                   "false_positives_per_view": r["false_positives_per_view"],
+                                   "seconds_per_view": (time.perf_counter() - t) / max(r["views"], 1)}
     return out
+
+
+def view_subset(views: dict[str, Any], idx: Any) -> dict[str, Any]:
+    """The views ``idx`` of a loaded split: every per-view array indexed, ``meta`` (per scene) kept whole."""
+    n = len(views["rgb"])
+    return {k: (v[idx] if hasattr(v, "shape") and len(v) == n else v) for k, v in views.items()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -74,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="ground truth: glass objects only (default) or every labelled object")
     ap.add_argument("--out", default=str(RESULTS), help="result folder")
     ap.add_argument("--note", default="", help="a paragraph for the Markdown file: what is compared and why")
+    ap.add_argument("--by-renderer", action="store_true",
+                    help="also score each split's views per renderer (pbr, mujoco, pbr_scalar) where it mixes them")
     args = ap.parse_args(argv)
     check_tag(args.tag)
     data = Path(args.data)
@@ -85,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     recipe = json.loads((data / "recipe.json").read_text()) if (data / "recipe.json").is_file() else {}
     doc: dict[str, Any] = {"context": context(vars(args)), "data": str(data), "recipe": recipe,
                            "classes": args.classes,
-                           "models": [score(m, data, args.threads, args.classes) for m in args.models.split(",") if m]}
+                           "models": [score(m, data, args.threads, args.classes, args.by_renderer)
+                                      for m in args.models.split(",") if m]}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / f"seg_compare_{args.tag}.json", doc)

@@ -222,6 +222,18 @@ def test_grasping_names_one_column_per_learned_model(tmp_path):
            "model v4 |" in text and "| LAB1 | 10% | a, b, c, d | 3/4 (0/1) | 3/4 (0/1) |" in text
 
 
+def test_seg_compare_view_subset_indexes_per_view_arrays_and_keeps_the_scene_meta() -> None:
+    import numpy as np
+
+    from benchmarks.seg_compare import view_subset
+
+    views = {"rgb": np.zeros((5, 2, 2, 3)), "mask": np.arange(5)[:, None, None] * np.ones((5, 2, 2)),
+             "scene": np.array([0, 0, 1, 1, 2]), "meta": [{"renderer": "pbr"}, {"renderer": "mujoco"}, {}]}
+    sub = view_subset(views, np.array([1, 4]))
+    assert sub["rgb"].shape[0] == 2 and sub["mask"][:, 0, 0].tolist() == [1, 4] and sub["scene"].tolist() == [0, 2]
+    assert sub["meta"] is views["meta"]
+
+
 def test_seg_compare_scores_every_model_on_the_same_views(tmp_path: Path) -> None:
     data = tmp_path / "data"
     env = dict(os.environ, MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl")
