@@ -93,9 +93,14 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--boxes", choices=("gdino", "learned"), default="gdino",
                     help="box prompts from Grounding DINO or from torm's learned segmenter (no Grounding DINO)")
     ap.add_argument("--no-arena", action="store_true",
-                    help="onnxruntime without its CPU memory arena (grounded_sam memory_arena: false)")
+                    help="onnxruntime without its CPU memory arena (grounded_sam memory_arena: false, torm's default "
+                         "since 2026-12-07; without this flag the run measures onnxruntime's own default, the arena)")
     ap.add_argument("--name", default=None, help="result file stem (default gsam_cpu / sam2_cpu, _tiny with --tiny)")
+    ap.add_argument("--summary", action="store_true",
+                    help="write gsam_memory.{json,md} from the committed results of every configuration (runs nothing)")
     args = ap.parse_args(argv)
+    if args.summary:
+        return summary()
     threads = setup(args.threads or THREADS)
     from torm.segmentation.export import (
         export_grounding_dino,
@@ -189,6 +194,54 @@ def main(argv: list[str] | None = None) -> dict:
           ""]
     (RESULTS / f"{name}.md").write_text("\n".join(md))
     print(json.dumps({"median_s": med, "capture_50_views_min": out["capture_50_views_min"]}))  # noqa: T201
+    return out
+
+
+#: result stems of the configurations the summary reads (box source, SAM kind; each with and without the arena)
+CONFIGS = (("gsam_cpu", "gdino", "sam"), ("sam2_gdino_cpu", "gdino", "sam2"), ("sam_learned_cpu", "learned", "sam"),
+           ("sam2_learned_cpu", "learned", "sam2"))
+
+
+def estimate_gb(doc: dict, boxes: str, sam_kind: str) -> float:
+    """:func:`torm.resources.grounded_sam_bytes` for a result's configuration (GB): what the segmenter would have
+    refused against before loading."""
+    from torm.resources import GDINO_REFERENCE_PX, grounded_sam_bytes
+
+    return grounded_sam_bytes(int(doc["model_files_gb"] * 1e9), GDINO_REFERENCE_PX if boxes == "gdino" else 0,
+                              sam_kind, 1024, bool(doc["memory_arena"])) / 1e9
+
+
+def summary() -> dict:
+    """One table of every configuration's measured memory and time beside the segmenter's estimate."""
+    rows, out = [], {"rows": []}
+    for stem, boxes, kind in CONFIGS:
+        for suffix in ("", "_no_arena"):
+            path = RESULTS / f"{stem}{suffix}.json"
+            if not path.is_file() or "memory" not in (doc := json.loads(path.read_text())):
+                continue
+            est = estimate_gb(doc, boxes, kind)
+            m = doc["memory"]
+            row = {"result": path.name, "boxes": boxes, "sam_kind": kind, "memory_arena": doc["memory_arena"],
+                   "date": doc["context"].get("date_utc"), "model_files_gb": doc["model_files_gb"],
+                   "after_load_gb": m["rss_after_load_gb"], "peak_gb": m["peak_rss_gb"], "estimate_gb": round(est, 2),
+                   "seconds_per_view": doc["seconds_per_view_median"]["view"],
+                   "other_processes_cores": doc["other_processes_cores"]}
+            out["rows"].append(row)
+            rows.append([f"`{path.stem}`", "Grounding DINO" if boxes == "gdino" else "learned",
+                         "SAM ViT-B" if kind == "sam" else "SAM 2.1 Hiera-Tiny", "on" if row["memory_arena"] else
+                         "**off**", f"{row['model_files_gb']:.2f}", f"{row['after_load_gb']:.2f}",
+                         f"**{row['peak_gb']:.2f}**", f"{row['estimate_gb']:.2f}", f"{row['seconds_per_view']:.2f}"])
+    write_json(RESULTS / "gsam_memory.json", out)
+    md = ["# Grounding DINO / SAM on the CPU: peak memory and time per view, every configuration", "",
+          "Each row is one `benchmarks/gsam_cpu.py` run (published architectures, random weights, onnxruntime on 2 "
+          "threads, a 1280x720 render, median of 3 views in a fresh process; its own file names the date, git and "
+          "machine). GB = 1e9 bytes. Estimate: what `grounded_sam` computes before loading anything "
+          "(`torm.resources.grounded_sam_bytes`) and refuses against the machine's free memory; it must stay above "
+          "every measured peak (`tests/test_resources.py`). Memory arena: onnxruntime's CPU arena, torm's "
+          "`grounded_sam.memory_arena` (off by default since these runs).", "",
+          md_table(["result", "boxes", "SAM", "arena", "ONNX files", "after loading", "peak", "estimate",
+                    "s / view"], rows), ""]
+    (RESULTS / "gsam_memory.md").write_text("\n".join(md))
     return out
 
 

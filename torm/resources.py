@@ -37,6 +37,23 @@ GRASP_BYTES_PER_CANDIDATE = 1280
 #: Peak memory of the voxel carve per voxel of its grid (bytes): tracemalloc peaks of 95 B at 64^3-192^3, 8 views
 #: of 160 x 120, 2026-12-07 (the surviving voxels' indices and centres, the first view's projection).
 CARVE_BYTES_PER_VOXEL = 96
+#: Grounding DINO + SAM on onnxruntime's CPU provider, measured by ``benchmarks/gsam_cpu.py`` (2026-12-07, every
+#: combination of Grounding DINO or learned boxes, SAM ViT-B or SAM 2.1 Hiera-Tiny, memory arena on or off; the views
+#: in a fresh process; ``benchmarks/results/{gsam,sam2_gdino,sam_learned,sam2_learned}_cpu*.md``): the process before
+#: loading 0.36 GB (bytes below, GB = 1e9).
+GSAM_BASE_BYTES = 0.5e9
+#: Loading the sessions adds 1.2-2.0x the ONNX files' bytes (initialisers plus onnxruntime's pre-packed copies).
+ONNX_LOADED_BYTES_PER_FILE_BYTE = 2.1
+#: Grounding DINO's input size at which :data:`GDINO_WORK_BYTES` was measured (the official 16:9 resize, px).
+GDINO_REFERENCE_PX = 800 * 1333
+#: Working memory of segmenting views, by memory arena (True = onnxruntime's default): Grounding DINO at
+#: :data:`GDINO_REFERENCE_PX` (scaled with its input's pixels) and each SAM's image encoder at 1024 px. With the arena
+#: each session keeps its largest need, so the parts add; without it the tensors are freed and the larger part bounds
+#: the peak.
+#: Measured with / without the arena: Grounding DINO 3.74-3.84 / 1.91 GB, SAM ViT-B 6.86 / 3.53, SAM 2.1 Hiera-Tiny
+#: 1.66 / 1.02; the constants add about 5 % (the estimate stays above every measured peak: tests/test_resources.py).
+GDINO_WORK_BYTES = {True: 4.0e9, False: 2.0e9}
+SAM_WORK_BYTES = {("sam", True): 7.2e9, ("sam2", True): 1.8e9, ("sam", False): 3.7e9, ("sam2", False): 1.1e9}
 #: Full-resolution image size of the simulated camera (pixels, width x height); ``capture.scale`` scales both.
 CAMERA_FULL_SIZE = (1280, 720)
 
@@ -79,6 +96,21 @@ def grasp_bytes(n_objects: int, n_samples: int, n_angles: int, n_depths: int) ->
     return int(n_objects) * int(n_samples) * int(n_angles) * int(n_depths) * GRASP_BYTES_PER_CANDIDATE
 
 
+def grounded_sam_bytes(file_bytes: int, gdino_px: int, sam_kind: str, sam_image_size: int = 1024,
+                       memory_arena: bool = False) -> float:
+    """Estimated peak memory (bytes) of the ``grounded_sam`` segmenter: :data:`GSAM_BASE_BYTES`, the loaded ONNX
+    files (``file_bytes`` on disk), and the working memory of Grounding DINO at ``gdino_px`` input pixels (0: boxes
+    from the learned segmenter) and of the SAM encoder (``sam_kind`` ``sam`` | ``sam2``) at ``sam_image_size`` px
+    (scaled by (size / 1024)^2 below 1024 and ^4 above: ViT-B's global attention is quadratic in its tokens)."""
+    if sam_kind not in ("sam", "sam2"):
+        raise ConfigError(f"sam_kind {sam_kind!r}; valid choices: sam, sam2")
+    work_g = GDINO_WORK_BYTES[memory_arena] * gdino_px / GDINO_REFERENCE_PX
+    r = sam_image_size / 1024
+    work_s = SAM_WORK_BYTES[(sam_kind, memory_arena)] * (r ** 4 if r > 1 else r ** 2)
+    work = work_g + work_s if memory_arena else max(work_g, work_s)
+    return GSAM_BASE_BYTES + ONNX_LOADED_BYTES_PER_FILE_BYTE * file_bytes + work
+
+
 def gib(n_bytes: float) -> str:
     """``n_bytes`` as a short human-readable size (``'1.5 GiB'``, ``'2.3e+06 GiB'``)."""
     g = n_bytes / (1 << 30)
@@ -112,6 +144,7 @@ def check_trial_fits(n_views: int, scale: float, available: int | None = None) -
                "use fewer views (paper: 50) or a smaller capture.scale (default 0.5)", available)
 
 
-__all__ = ["CAMERA_FULL_SIZE", "CAPTURE_BYTES_PER_PIXEL", "CARVE_BYTES_PER_VOXEL", "GRASP_BYTES_PER_CANDIDATE",
-           "TRIAL_BASE_BYTES", "available_memory_bytes", "capture_bytes", "capture_size", "check_fits",
-           "check_trial_fits", "gib", "grasp_bytes", "trial_bytes"]
+__all__ = ["CAMERA_FULL_SIZE", "CAPTURE_BYTES_PER_PIXEL", "CARVE_BYTES_PER_VOXEL", "GDINO_REFERENCE_PX",
+           "GDINO_WORK_BYTES", "GRASP_BYTES_PER_CANDIDATE", "GSAM_BASE_BYTES", "ONNX_LOADED_BYTES_PER_FILE_BYTE",
+           "SAM_WORK_BYTES", "TRIAL_BASE_BYTES", "available_memory_bytes", "capture_bytes", "capture_size",
+           "check_fits", "check_trial_fits", "gib", "grasp_bytes", "grounded_sam_bytes", "trial_bytes"]

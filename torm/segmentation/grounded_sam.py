@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 
 from torm.errors import CaptureError, ConfigError, ModelFileError
+from torm.resources import check_fits, grounded_sam_bytes
 from torm.segmentation.base import Detection, SegmentationResult, Segmenter, score_against_capture
 from torm.segmentation.boxes import DecodedBoxes, decode_grounding
 from torm.segmentation.onnx_models import BoundSession, TensorSpec, open_session, static_dims
@@ -130,6 +131,11 @@ class GroundedSAMConfig:
     users with SAM weights but no Grounding DINO: each instance of torm's learned segmenter, configured by
     ``learned`` (a :class:`torm.segmentation.learned.LearnedConfig` mapping), prompts SAM with its box; then
     ``gdino_model`` and ``bert_vocab`` are not needed).
+    ``memory_arena``: onnxruntime's CPU memory arena (its default) keeps each session's largest working set; off
+    (torm's default) tensors are freed as they die: Grounding DINO + SAM ViT-B peaked at 5.2 GB instead of 12.8 GB
+    and ran a view in 18.8 s instead of 22.0 s (``benchmarks/results/gsam_cpu*.md``, 2026-12-07). The segmenter
+    refuses a configuration whose estimated peak (:func:`torm.resources.grounded_sam_bytes`) exceeds the free memory
+    before loading anything.
     """
 
     gdino_model: str = ""
@@ -157,7 +163,7 @@ class GroundedSAMConfig:
     threads: int = 0
     box_source: str = "gdino"
     learned: dict[str, Any] = field(default_factory=dict)
-    memory_arena: bool = True
+    memory_arena: bool = False
 
     def __post_init__(self) -> None:
         if self.box_source not in BOX_SOURCES:
@@ -299,6 +305,10 @@ class GroundedSAMSegmenter(Segmenter):
 
     def __init__(self, config: GroundedSAMConfig) -> None:
         self.config = c = config
+        check_fits(self.memory_need(), f"grounded_sam ({self.memory_label()})",
+                   "keep grounded_sam memory_arena false (the default: 5.2 GB instead of 12.8 GB measured for "
+                   "Grounding DINO + SAM ViT-B), export SAM 2.1 Hiera-Tiny (`torm export-models --sam-kind sam2`), "
+                   "prompt SAM with the learned segmenter's boxes (box_source: learned), or free memory")
         providers = list(c.providers) or None
         enc_in, enc_out = sam_encoder_specs(c.sam_image_size)
         self.sam_encoder = open_session(c.sam_encoder, "grounded_sam.sam_encoder", enc_in, enc_out, providers,
@@ -342,6 +352,39 @@ class GroundedSAMSegmenter(Segmenter):
         img_dims = static_dims(self.gdino, "img")
         self._gdino_static_hw = (img_dims[2], img_dims[3]) if img_dims[2] and img_dims[3] else None
         self.text: TextInputs = grounding_text_inputs(self.tokenizer, c.prompt, c.max_text_len, pad_to=self._text_len)
+
+    def _files(self) -> list[Path]:
+        c = self.config
+        names = [c.sam_encoder, c.sam_decoder] + ([c.gdino_model] if c.box_source == "gdino" else [])
+        return [Path(n).expanduser() for n in names if n and Path(n).expanduser().is_file()]
+
+    def _declared_sam_kind(self) -> str:
+        """``sam2`` when the encoder's card says so (``torm export-models`` writes it), else ``sam``."""
+        card = read_card(self.config.sam_encoder) if self.config.sam_encoder else None
+        return "sam2" if card and (card.get("sam_kind") == "sam2" or "sam2" in str(card.get("model", ""))) else "sam"
+
+    def _declared_gdino_px(self) -> int:
+        """Grounding DINO's input pixels: the configured size, else the export's card, else the official resize of
+        a 16:9 frame at its maximum (800 x 1333); 0 with box_source learned."""
+        c = self.config
+        if c.box_source != "gdino":
+            return 0
+        if c.gdino_image_size is not None:
+            return int(c.gdino_image_size[0]) * int(c.gdino_image_size[1])
+        hw = (read_card(c.gdino_model) or {}).get("image_hw") if c.gdino_model else None
+        return int(hw[0]) * int(hw[1]) if hw else c.gdino_short_side * c.gdino_max_size
+
+    def memory_need(self) -> float:
+        """Estimated peak memory (bytes) of this configuration (:func:`torm.resources.grounded_sam_bytes`), from the
+        files on disk and their cards, before anything is loaded."""
+        return grounded_sam_bytes(sum(p.stat().st_size for p in self._files()), self._declared_gdino_px(),
+                                  self._declared_sam_kind(), self.config.sam_image_size, self.config.memory_arena)
+
+    def memory_label(self) -> str:
+        c = self.config
+        boxes = "Grounding DINO boxes" if c.box_source == "gdino" else "learned boxes"
+        return (f"{boxes}, {self._declared_sam_kind()} at {c.sam_image_size} px, memory_arena "
+                f"{str(c.memory_arena).lower()}")
 
     def gdino_input_hw(self, h: int, w: int) -> tuple[int, int]:
         if self._gdino_static_hw is not None:
