@@ -150,7 +150,7 @@ def score(maps: list[np.ndarray], data: dict[str, Any], setting: dict[str, Any],
     st = setting
 
     def segment(_im: np.ndarray) -> np.ndarray:
-        m = next(it)
+        m = next(it)[:5]  # a class-head model's 6th map (transparent vs opaque) does not shape instances
         return instances_from_maps(m, st["grouping"], st["fg_threshold"], st["boundary_threshold"],
                                    st["min_core_px"], 30, st["centre_threshold"], st["nms_px"], st["max_vote_px"])[0]
 

@@ -139,3 +139,17 @@ def test_recipe_refuses_unknown_object_distractor_kinds_and_glass_only_labels():
     with pytest.raises(ConfigError, match="label_opaque"):
         DataRecipe(object_distractors=("mug",), label_opaque=False)
     assert DataRecipe(object_distractors=("mug", "can")).object_distractors == ("mug", "can")
+
+
+def test_evaluate_counts_labelled_distractors_as_their_own_object_type():
+    """Instance ids past the world's objects (data.object_distractors) are scored under the type 'distractor'."""
+    from torm.segmentation.training.evaluate import evaluate
+
+    mask = np.zeros((1, 20, 20), np.int32)
+    mask[0, :10, :10] = 1  # the scene's one object
+    mask[0, 10:, 10:] = 2  # a labelled distractor
+    data = {"rgb": np.zeros((1, 20, 20, 3), np.uint8), "mask": mask, "T_world_cam": np.eye(4)[None],
+            "scene": np.array([0]), "meta": [{"objects": ["cylinder"]}]}
+    r = evaluate(lambda im: mask[0], data, min_visible_px=10)
+    assert r["object"]["iou_mean"] == pytest.approx(1.0)
+    assert set(r["per_type"]) == {"cylinder", "distractor"}

@@ -72,7 +72,8 @@ def evaluate(segment: Callable[[np.ndarray], np.ndarray], data: dict[str, Any], 
         for b, g in enumerate(gids):
             if garea[b] < min_visible_px:
                 continue
-            name = meta["objects"][g - 1]
+            # ids past the world's objects are distractors labelled as opaque objects (data.object_distractors)
+            name = meta["objects"][g - 1] if g <= len(meta["objects"]) else "distractor"
             per_type[name].append(float(best[b]))
             obj_iou_all.append(float(best[b]))
             sc_all.append(int(scene[v]))
