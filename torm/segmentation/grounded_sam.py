@@ -315,7 +315,7 @@ class GroundedSAMSegmenter(Segmenter):
                                         c.threads, c.memory_arena)
         self.sam_decoder = open_session(c.sam_decoder, "grounded_sam.sam_decoder",
                                         SAM_DECODER_INPUTS + SAM2_DECODER_INPUTS, SAM_DECODER_OUTPUTS, providers,
-                                        c.threads)
+                                        c.threads, c.memory_arena)
         enc2 = {"high_res_0", "high_res_1"} <= set(self.sam_encoder.outputs)
         dec2 = {"high_res_0", "high_res_1"} <= set(self.sam_decoder.inputs)
         if enc2 != dec2:
