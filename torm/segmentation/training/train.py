@@ -285,13 +285,6 @@ def predict(net: SegUNet, rgb_nxhxwx3: np.ndarray, batch: int = 4, ref_nxhxwx3: 
     return out
 
 
-def _mean_iou(p_nxhxw: np.ndarray, g_nxhxw: np.ndarray) -> float:
-    """Mean per-image IoU of two boolean stacks (an image where both are empty scores 1)."""
-    inter = (p_nxhxw & g_nxhxw).reshape(len(g_nxhxw), -1).sum(1)
-    union = (p_nxhxw | g_nxhxw).reshape(len(g_nxhxw), -1).sum(1)
-    return float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
-
-
 def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: int = 100,
                ref: np.ndarray | None = None, transparent: np.ndarray | None = None) -> dict[str, float]:
     """``fg_iou``: mean per-image foreground IoU at threshold 0.5 (empty-vs-empty = 1); ``object_iou``: mean over
@@ -299,6 +292,7 @@ def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: 
     :func:`torm.segmentation.instances.instances_from_maps` with its default settings. With ``transparent``
     ((N, H, W) 1 on transparent objects' pixels) and a class head, ``transparent_iou``: the mean per-image IoU of
     the pixels called foreground and transparent (both > 0.5) against them (what a glass prompt reads)."""
+    from torm.metrics import silhouette_iou
     from torm.segmentation.instances import instances_from_maps
     from torm.segmentation.training.evaluate import _ious
 
@@ -308,9 +302,10 @@ def val_scores(net: SegUNet, rgb: np.ndarray, mask: np.ndarray, min_visible_px: 
         pids, _gids, iou, garea = _ious(instances_from_maps(m[:5])[0], gt)
         per_gt = iou.max(axis=0) if pids else np.zeros(len(garea))
         best += [float(b) for b, a in zip(per_gt, garea, strict=True) if a >= min_visible_px]
-    out = {"fg_iou": _mean_iou(maps[:, 0] > 0.5, mask > 0), "object_iou": float(np.mean(best)) if best else 1.0}
+    out = {"fg_iou": silhouette_iou(maps[:, 0] > 0.5, mask)["mean"],
+           "object_iou": float(np.mean(best)) if best else 1.0}
     if transparent is not None and maps.shape[1] > 5:
-        out["transparent_iou"] = _mean_iou((maps[:, 0] > 0.5) & (maps[:, 5] > 0.5), transparent > 0)
+        out["transparent_iou"] = silhouette_iou((maps[:, 0] > 0.5) & (maps[:, 5] > 0.5), transparent)["mean"]
     return out
 
 
