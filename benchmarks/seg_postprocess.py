@@ -60,14 +60,15 @@ DEFAULT = {"grouping": "boundary", "fg_threshold": 0.5, "boundary_threshold": 0.
 DEFAULT_CENTRE = {**DEFAULT, "grouping": "centre"}
 
 
-def grid(channels: int, quick: bool = False) -> list[dict[str, Any]]:
+def grid(channels: int, quick: bool = False, flip_tta: bool = True) -> list[dict[str, Any]]:
     """The settings searched on val: the boundary grid (FG x BD x CORE x flip; for a centre-head model a
     16-setting subset), and for a centre-head model the centre grid (CENTRE_FG x CENTRE_THR x NMS x VOTE x flip)
-    and a 16-setting hybrid grid."""
+    and a 16-setting hybrid grid. ``flip_tta=False``: only settings with one network run per view (the hybrid
+    grid unflipped)."""
     def mk(**kw: Any) -> dict[str, Any]:
         return {**DEFAULT, **kw}
 
-    flips = (False, True)
+    flips = (False, True) if flip_tta else (False,)
     if channels == 2:
         fg, bd, core = (FG[1:3], BD[2:4], CORE[:2]) if quick else (FG, BD, CORE)
         return [mk(fg_threshold=f, boundary_threshold=b, min_core_px=c, flip_tta=t)
@@ -78,7 +79,7 @@ def grid(channels: int, quick: bool = False) -> list[dict[str, Any]]:
     out += [mk(grouping="centre", fg_threshold=f, centre_threshold=c, nms_px=n, max_vote_px=v, flip_tta=t)
             for f, c, n, v, t in itertools.product(cfg, cthr, nms, vote, flips)]
     out += [mk(grouping="hybrid", fg_threshold=f, boundary_threshold=b, min_core_px=c, centre_threshold=ct,
-               flip_tta=True) for f, b, c, ct in itertools.product((0.4, 0.5), (0.3, 0.5), (8, 32), (0.2, 0.3))]
+               flip_tta=flip_tta) for f, b, c, ct in itertools.product((0.4, 0.5), (0.3, 0.5), (8, 32), (0.2, 0.3))]
     return out[:4] + out[16:18] + out[-2:] if quick else out
 
 
@@ -87,6 +88,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add_split_args(p)
     p.add_argument("--write-card", action="store_true", help="store the chosen setting in the model card")
     p.add_argument("--quick", action="store_true", help="tiny grid and 1 shard per split (for tests)")
+    p.add_argument("--no-flip-tta", action="store_true",
+                   help="search only settings with one network run per view (flip TTA doubles the segmentation "
+                        "time; use it when the model already misses the speed target)")
     p.add_argument("--select-on", choices=SELECT_ON, default="object_iou",
                    help="the val score that picks the setting: object_iou (best-match IoU per GT object; blind to "
                         "false positives) or silhouette_iou (union IoU per view: false positives on opaque "
@@ -180,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     probs = {s: probabilities(seg, data[s]["rgb"]) for s in splits}
     net_s = time.perf_counter() - t0
-    settings = grid(seg.channels, a.quick)
+    settings = grid(seg.channels, a.quick, flip_tta=not a.no_flip_tta)
     default = DEFAULT_CENTRE if seg.channels == 5 else DEFAULT
     if default not in settings:
         settings.insert(0, dict(default))
@@ -207,9 +211,12 @@ def main(argv: list[str] | None = None) -> int:
     (a.out / "seg_postprocess.md").write_text(report(doc))
     if a.write_card:
         path = seg.config.model_path.with_suffix(".json")
-        card = json.loads(path.read_text())
+        text = path.read_text()
+        card = json.loads(text)
         card["postprocess"] = card_entry(doc)
-        path.write_text(json.dumps(card, indent=2) + "\n")
+        second = (text.splitlines() or ["", ""])[1:2] or [""]
+        indent = max(1, len(second[0]) - len(second[0].lstrip()))  # keep the card's own layout
+        path.write_text(json.dumps(card, indent=indent) + "\n")
         log.info("wrote the chosen post-processing into %s", path)
     log.info("chosen %s: val %s %.3f (default %.3f)", chosen, a.select_on, best[a.select_on],
              default_val[a.select_on])

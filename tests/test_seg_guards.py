@@ -138,3 +138,23 @@ def test_the_input_width_defaults_to_the_width_of_the_models_training_frames(tmp
     assert learned_input_width(cfg) == 320
     small.with_suffix(".json").write_text(json.dumps({"data": {"full_width": 320}, "finetune": {"input_width": 512}}))
     assert card_input_width(small) == 512  # fine-tuned on a user's frames: the width it was tuned at
+
+
+def test_a_result_names_the_post_processing_from_the_card_or_the_config(tmp_path):
+    """The model hash stays when a card's calibration changes, so the trial context names the post-processing too."""
+    import shutil
+
+    from torm import config
+    from torm.pipeline import TrialConfig, trial_context
+    from torm.segmentation.learned import DEFAULT_MODEL, postprocess_label
+
+    model = tmp_path / "m.onnx"
+    shutil.copy(DEFAULT_MODEL, model)
+    assert postprocess_label(model).startswith("default: ")  # no card
+    model.with_suffix(".json").write_text(json.dumps({"postprocess": {
+        "grouping": "centre", "fg_threshold": 0.3, "centre_threshold": 0.1, "nms_px": 15, "max_vote_px": 40.0}}))
+    assert postprocess_label(model) == "card: centre fg 0.3 centre 0.1 nms 15 vote 40"
+    assert postprocess_label(model, {"flip_tta": True, "grouping": "boundary", "threads": 1}) == \
+        "config: boundary fg 0.3 boundary 0.5 core 8 flip"  # the config's values over the card's
+    cfg = config.from_dict(TrialConfig, {"segmentation": {"segmenter": "learned", "options": {"model": str(model)}}})
+    assert trial_context(cfg)["segmenter_postprocess"] == postprocess_label(model)

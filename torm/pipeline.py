@@ -84,8 +84,10 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     ``depth_model``, ``realism`` (``measured[contact+...]`` when only some factor groups are drawn; ``stress[...] xK``),
     ``backend``, ``table`` (where the loop's table height came from: ``declared`` or ``capture``);
     with the ``learned`` segmenter also ``segmenter_model`` (:func:`torm.segmentation.learned.model_fingerprint`:
-    file name and content hash) and ``segmenter_input_px`` (the width the network reads; 0 = the capture's); with
-    the ``pbr`` renderer ``render_scale`` (the traced fraction of the capture size, :func:`resolve_render_scale`).
+    file name and content hash), ``segmenter_postprocess`` (:func:`~torm.segmentation.learned.postprocess_label`:
+    the card's calibration can change without the file) and ``segmenter_input_px`` (the width the network reads;
+    0 = the capture's); with the ``pbr`` renderer ``render_scale`` (the traced fraction of the capture size,
+    :func:`resolve_render_scale`).
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
@@ -123,9 +125,10 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         ctx.update(planner=config.planner, planner_version=str(pl.version),
                    planner_options_sha=planner_hash(dict(config.planner_options)))
     if torm_method and seg.segmenter == "learned":
-        from torm.segmentation.learned import model_fingerprint
+        from torm.segmentation.learned import model_fingerprint, postprocess_label
 
         ctx["segmenter_model"] = model_fingerprint(str(seg.options.get("model", "") or ""))
+        ctx["segmenter_postprocess"] = postprocess_label(str(seg.options.get("model", "") or ""), dict(seg.options))
         ctx["segmenter_input_px"] = learned_input_width(config)
     if config.capture.renderer == "pbr":
         ctx["render_scale"] = resolve_render_scale(config)

@@ -184,12 +184,40 @@ def card_input_width(model_path: str | Path) -> int:
     for a model fine-tuned on a user's frames, else ``data.full_width``):
     reading views at that width gives objects the pixel size the model learned. :data:`DEFAULT_INPUT_WIDTH` when the
     card is missing or names none."""
+    return training_width(_read_card(model_path))
+
+
+def _read_card(model_path: str | Path) -> dict[str, Any]:
+    """The model card beside ``model_path`` (``<model>.json``); ``{}`` when missing or unreadable."""
     card = Path(model_path).expanduser().with_suffix(".json")
     try:
         d = json.loads(card.read_text()) if card.is_file() else {}
     except (OSError, ValueError):
         d = {}
-    return training_width(d)
+    return d if isinstance(d, dict) else {}
+
+
+#: the post-processing keys that matter per grouping (for :func:`postprocess_label`)
+_LABEL_KEYS = {"boundary": ("fg_threshold", "boundary_threshold", "min_core_px"),
+               "centre": ("fg_threshold", "centre_threshold", "nms_px", "max_vote_px"),
+               "hybrid": ("fg_threshold", "boundary_threshold", "min_core_px", "centre_threshold")}
+
+
+def postprocess_label(model: str | Path = "", options: dict[str, Any] | None = None) -> str:
+    """The post-processing a learned-segmenter run uses, as a result record names it (the model file's hash does not
+    change when its card's calibration does): where it comes from (``config`` options, the model ``card``'s
+    calibration, or the ``default``), the grouping, its thresholds and ``flip`` when flip TTA doubles the network
+    runs, e.g. ``card: centre fg 0.3 centre 0.1 nms 15 vote 40``. Reads the card only; loads no model."""
+    opts = {k: v for k, v in (options or {}).items() if k in POSTPROCESS_DEFAULTS and v is not None}
+    post = _read_card(LearnedConfig(model=str(model or "")).model_path).get("postprocess") or {}
+    pp = {k: opts.get(k, post.get(k, d)) for k, d in POSTPROCESS_DEFAULTS.items()}
+    source = "config" if opts else ("card" if post else "default")
+    grouping = pp["grouping"] or "auto"
+    short = {"fg_threshold": "fg", "boundary_threshold": "boundary", "min_core_px": "core",
+             "centre_threshold": "centre", "nms_px": "nms", "max_vote_px": "vote"}
+    keys = _LABEL_KEYS.get(grouping, _LABEL_KEYS["hybrid"])
+    text = " ".join(f"{short[k]} {float(pp[k]):g}" for k in keys)
+    return f"{source}: {grouping} {text}" + (" flip" if pp["flip_tta"] else "")
 
 
 def training_width(card: dict[str, Any]) -> int:
