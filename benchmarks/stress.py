@@ -7,12 +7,17 @@ k = 1 is the worst *sourced* value, k = 2 and 4 are **stress, not realism**), be
 plots). The curves show how much margin each factor has and where slip, displacement or pruning begins. Nothing is
 fitted to the paper: the sourced ``measured`` profile stays the default of every benchmark.
 
-Grip force: the 2F-85 cannot grip below 20 N (its force register's floor, HARDWARE.md), so levels below the
-worst sourced 20 N are commanded and clipped to 20 N by the gripper; the report says so rather than pretend.
+Grip force: the 2F-85 cannot grip below 20 N (its force register's floor, HARDWARE.md; the simulated gripper's
+``gripper_force_range``), so a level whose pad force lies below the floor would be clipped to 20 N and test nothing
+beyond x1: such levels are not run, and the report says why.
 
-Written: ``benchmarks/results/stress.json``, ``.md`` and ``.png``. Run folders under ``runs/stress/`` are resumable.
-Run: ``MUJOCO_GL=egl nice -n 15 python benchmarks/stress.py [--trials 2] [--levels 1,2,4] [--workers 2]``;
-``--report-only`` rewrites the report from the run folders.
+What the loop sees is the default trial's (simulator masks, MuJoCo renders, ideal depth) unless ``--set KEY=VALUE``
+(repeatable; e.g. ``segmentation.segmenter=learned``, ``capture.renderer=pbr``) changes it for every run; the
+report's header names what produced the rows from their context records.
+
+Written: ``benchmarks/results/stress[_<tag>].json``, ``.md`` and ``.png``. Run folders under ``runs/stress[_<tag>]/``
+are resumable. Run: ``MUJOCO_GL=egl nice -n 15 python benchmarks/stress.py [--trials 5] [--levels 1,2,4]
+[--workers 2] [--set KEY=VALUE] [--tag NAME]``; ``--report-only`` rewrites the report from the run folders.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._common import check_tag  # noqa: E402
 from benchmarks.fidelity import FAILURE_MODES  # noqa: E402
 from torm.bench import BenchConfig, run_benchmark  # noqa: E402
 from torm.bench.report import load_run  # noqa: E402
@@ -42,7 +48,35 @@ from torm.pipeline import REALISM_FACTORS as FACTORS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
-RUNS = ROOT / "runs" / "stress"
+RUNS = ROOT / "runs"
+#: the context keys that say what produced a row (the report's header)
+WHAT_RAN = ("segmenter", "segmenter_model", "segmenter_postprocess", "renderer", "depth_model", "reconstruction_mode",
+            "table")
+
+
+def grip_floor_n() -> float:
+    """The simulated 2F-85's lowest pad force (N): commands below it are clipped to it."""
+    from sim.backend import SimBackendConfig
+
+    return float(SimBackendConfig().gripper_force_range[0])
+
+
+def below_floor(group: str, level: float) -> bool:
+    """True when ``group`` at ``level`` asks for a pad force the gripper cannot command (the level tests nothing)."""
+    from sim.realism import MEASURED
+
+    return group == "grip_force" and MEASURED.stressed(level).grip_force.lo < grip_floor_n() - 1e-9
+
+
+def what_ran(contexts: list[str]) -> str:
+    """``key value`` pairs of :data:`WHAT_RAN` over the rows' context records (several values joined by " / ")."""
+    ctx = [json.loads(c) for c in contexts if c and c != "null"]
+    parts = []
+    for k in WHAT_RAN:
+        vals = sorted({str(c.get(k)) for c in ctx if c.get(k) is not None})
+        if vals:
+            parts.append(f"{k} {' / '.join(vals)}")
+    return ", ".join(parts) or "unknown (no context in the rows)"
 
 
 def _rate(k: int, n: int) -> dict[str, Any]:
@@ -78,9 +112,11 @@ def level_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def write_markdown(doc: dict[str, Any], path: Path) -> None:
     cfg, s = doc["config"], doc["summary"]
     levels = ["ideal"] + [f"x{lv:g}" for lv in cfg["levels"]]
+    contexts = sorted({c for g in s.values() for e in g.values() if isinstance(e, dict) for c in e.get("contexts", [])})
     L = ["# Margins: success as each realism factor group is pushed beyond its sourced range", "",
-         f"Suite rw, {cfg['trials']} trial(s) per scenario, method `{cfg['method']}` (segmenter gt, renderer mujoco, "
-         f"depth ideal), one factor group at a time, the others ideal. Level x1 = every parameter of the group at "
+         f"Suite rw, {cfg['trials']} trial(s) per scenario, method `{cfg['method']}` ({what_ran(contexts)}; "
+         f"overrides: {', '.join(f'`{o}`' for o in cfg.get('overrides') or []) or 'none'}), one factor group at a "
+         "time, the others ideal. Level x1 = every parameter of the group at "
          "the worst end of its sourced range (`sim/REALISM.md`); x2 and x4 push it two and four times further "
          "(`world.realism=stress`): **stress, not realism**. Cells: objects picked / attempted [Wilson 95 %]; "
          "failures by kind (slip, displaced, pruned, not seen, phantom, other). "
@@ -91,6 +127,9 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
         cells = []
         for lv in levels:
             e = s.get(group, {}).get(lv)
+            if e and e.get("skipped"):
+                cells.append(f"not run ({e['skipped']})")
+                continue
             if not e:
                 cells.append("–")
                 continue
@@ -106,9 +145,11 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
     g = s.get("grip_force", {})
     clipped = [lv for lv, e in g.items() if e.get("grip_requested_n") is not None and e.get("grip_commanded_n")
                is not None and e["grip_commanded_n"] > e["grip_requested_n"] + 1e-6]
-    if clipped:
-        L += ["", f"Grip force: at {', '.join(clipped)} the requested pad force lies below the 2F-85's 20 N floor and "
-                  "the gripper commands 20 N (its range); those levels test nothing beyond x1."]
+    skipped = [lv for lv, e in g.items() if e.get("skipped")]
+    if clipped or skipped:
+        L += ["", f"Grip force: at {', '.join(clipped + skipped)} the requested pad force lies below the 2F-85's "
+                  f"{grip_floor_n():g} N floor; the gripper would command {grip_floor_n():g} N (its range), so those "
+                  "levels test nothing beyond x1" + (" and were not run." if skipped else ".")]
     L += ["", f"Plot: `{Path(doc['plot']).name}`.", "",
           "Versions: " + ", ".join(f"{k} {v}" for k, v in doc["versions"].items() if v) + "."]
     path.write_text("\n".join(L) + "\n")
@@ -125,7 +166,7 @@ def plot(doc: dict[str, Any], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4))
     for group in cfg["groups"]:
         pts = [(x, s[group][lv]) for x, lv in zip(xs, ["ideal"] + [f"x{v:g}" for v in cfg["levels"]], strict=True)
-               if lv in s.get(group, {})]
+               if "objects" in s.get(group, {}).get(lv, {})]
         if not pts:
             continue
         r = [e["objects"]["rate"] for _, e in pts]
@@ -150,11 +191,7 @@ def level_values(group: str, level: float) -> str:
     from sim.realism import MEASURED
 
     r = MEASURED.stressed(level)
-    names = {"contact": ("pad_friction", "pad_torsion_lever", "object_friction"), "grip_force": ("grip_force",),
-             "objects": ("hollow_mass_scale",),
-             "calibration": ("hand_eye_translation", "hand_eye_rotation", "arm_repeatability", "focal_error",
-                             "principal_point_error"),
-             "execution": ("latency", "arm_repeatability")}[group]
+    names = [row["parameter"] for row in MEASURED.table() if group in row["factor"].split(", ")]
     return ", ".join(f"{n} {getattr(r, n).lo:.4g}{(' ' + getattr(r, n).unit) if getattr(r, n).unit else ''}"
                      for n in names)
 
@@ -170,22 +207,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--timeout", type=float, default=1800.0)
     ap.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN)
-    ap.add_argument("--runs-dir", default=str(RUNS))
+    ap.add_argument("--runs-dir", default="", help="run folders (default runs/stress[_<tag>])")
     ap.add_argument("--results-dir", default=str(RESULTS))
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a trial-config override for every run (e.g. segmentation.segmenter=learned)")
+    ap.add_argument("--tag", default="", help="write stress_<tag>.* and run into runs/stress_<tag>/")
     ap.add_argument("--report-only", action="store_true")
     ap.add_argument("--fresh", action="store_true")
     args = ap.parse_args(argv)
+    stem = f"stress_{check_tag(args.tag)}" if args.tag else "stress"
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     levels = [float(v) for v in args.levels.split(",") if v]
     groups = [g for g in args.groups.split(",") if g]
     common = dict(suite="rw", scenarios=tuple(args.scenario), workers=args.workers, timeout_s=args.timeout,
                   threads=args.threads, trials=args.trials, methods=(args.method,), trial_fn=args.trial_fn)
-    runs = Path(args.runs_dir)
+    runs = Path(args.runs_dir) if args.runs_dir else RUNS / stem
+    extra = tuple(args.overrides)
     plan: dict[tuple[str, str], tuple[BenchConfig, Path]] = {
-        ("*", "ideal"): (BenchConfig(overrides=("world.realism=ideal",), **common), runs / "ideal")}
+        ("*", "ideal"): (BenchConfig(overrides=(*extra, "world.realism=ideal"), **common), runs / "ideal")}
+    skipped: dict[tuple[str, str], str] = {}
     for g in groups:
         for lv in levels:
-            ov = ("world.realism=stress", f"world.stress={lv:g}", f"world.factors=[{g}]")
+            if below_floor(g, lv):
+                skipped[(g, f"x{lv:g}")] = f"below the gripper's {grip_floor_n():g} N floor"
+                continue
+            ov = (*extra, "world.realism=stress", f"world.stress={lv:g}", f"world.factors=[{g}]")
             plan[(g, f"x{lv:g}")] = (BenchConfig(overrides=ov, **common), runs / f"{g}_x{lv:g}")
     if not args.report_only:
         for (g, lv), (cfg, folder) in plan.items():
@@ -207,21 +253,23 @@ def main(argv: list[str] | None = None) -> int:
             ideal = level_summary(rows)
         else:
             summary[g][lv] = level_summary(rows)
+    for (g, lv), why in skipped.items():
+        summary[g][lv] = {"skipped": why}
     for g in groups:
         if ideal is not None:
             summary[g] = {"ideal": ideal, **summary[g]}
     out = Path(args.results_dir)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"config": {"trials": args.trials, "levels": levels, "groups": groups, "method": args.method,
-                      "scenarios": args.scenario, "workers": args.workers},
+                      "scenarios": args.scenario, "workers": args.workers, "overrides": list(extra)},
            "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
            "versions": package_versions(), "git": git_revision(), "run_git": sorted(run_git), "summary": summary,
            "values": {g: {f"{lv:g}": level_values(g, lv) for lv in levels} for g in groups},
            "run_folders": {f"{g}:{lv}": str(f) for (g, lv), (_, f) in plan.items()},
-           "plot": str(out / "stress.png")}
-    (out / "stress.json").write_text(json.dumps(doc, indent=1) + "\n")
+           "plot": str(out / f"{stem}.png")}
+    (out / f"{stem}.json").write_text(json.dumps(doc, indent=1) + "\n")
     plot(doc, Path(doc["plot"]))
-    write_markdown(doc, out / "stress.md")
+    write_markdown(doc, out / f"{stem}.md")
     return 0
 
 
