@@ -43,6 +43,7 @@ import torm  # noqa: E402  (registers the envs)
 from torm.bench.stats import difference_interval, format_rate, wilson_interval  # noqa: E402
 from torm.config import parse_yaml, to_dict  # noqa: E402
 from torm.env.outcome_table import record_layout, replay_matches_live  # noqa: E402
+from torm.env.policy_io import load_policy, save_policy  # noqa: E402
 from torm.env.selection_policies import POLICIES, PPO_HYPERPARAMETERS, choices, successes, train_ppo  # noqa: E402
 
 gym.register_envs(torm)
@@ -143,6 +144,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phases", nargs="+", default=["sweep", "train", "evaluate"],
                     choices=("sweep", "train", "evaluate"))
     ap.add_argument("--tag", default=None, help="run folder name (default: from the env id)")
+    ap.add_argument("--algorithm", default="MaskablePPO", choices=("MaskablePPO", "PPO"),
+                    help="the trained policy: sb3-contrib's MaskablePPO (reads the action mask) or plain PPO")
+    ap.add_argument("--random-seeds", type=int, default=20,
+                    help="the random policy is scored with this many generators (mean and range reported)")
     ap.add_argument("--runs-dir", default=str(RUNS))
     ap.add_argument("--out", default=str(RESULTS / "grasp_select_policies"))
     args = ap.parse_args(argv)
@@ -185,12 +190,14 @@ def main(argv: list[str] | None = None) -> int:
     curve_path = run / "curve.json"
     if "train" in args.phases:
         model, curve, train_s = train_ppo(train_rows, eval_rows, spaces, args.timesteps, args.eval_every,
-                                          args.seed, model_path)
+                                          args.seed, None, algorithm=args.algorithm)
+        save_policy(model, model_path, args.env_id, *spaces, trained_on={
+            "algorithm": args.algorithm, "timesteps": args.timesteps, "seed": args.seed,
+            "train_layouts": [int(r["seed"]) for r in train_rows], "hyperparameters": dict(PPO_HYPERPARAMETERS),
+            "script": "benchmarks/grasp_select_policies.py"})
         curve_path.write_text(json.dumps({"curve": curve, "train_s": train_s}))
     else:
-        from stable_baselines3 import PPO
-
-        model = PPO.load(str(model_path), device="cpu")
+        model = load_policy(model_path, env_id=args.env_id, observation_space=spaces[0]).model
         saved = json.loads(curve_path.read_text())
         curve, train_s = saved["curve"], saved["train_s"]
     rng = np.random.default_rng(args.seed)
@@ -199,6 +206,11 @@ def main(argv: list[str] | None = None) -> int:
         acts = choices(policy, eval_rows, model, rng)
         k, n = successes(eval_rows, acts), len(eval_rows)
         summary[policy] = {"successes": k, "episodes": n, "rate": k / n, "wilson95": list(wilson_interval(k, n))}
+    # the random policy's result depends on its draw: its mean and range over --random-seeds generators
+    draws = [successes(eval_rows, choices("random", eval_rows, None, np.random.default_rng([args.seed, i])))
+             for i in range(args.random_seeds)]
+    summary["random"].update(seeds=args.random_seeds, mean_successes=float(np.mean(draws)), min_successes=min(draws),
+                             max_successes=max(draws))
     expected_random = float(np.mean([np.mean([r["rewards"][a] for a in np.flatnonzero(r["obs"]["valid"])])
                                      if np.any(r["obs"]["valid"]) else 0.0 for r in eval_rows]))
     summary["random"]["expected_rate"] = expected_random
@@ -222,11 +234,12 @@ def main(argv: list[str] | None = None) -> int:
            "train_layouts": len(train_rows), "heldout_layouts": len(eval_rows), "summary": summary,
            "differences": diffs, "heldout_candidate_outcomes": outcome_counts, "success_by_rank": by_rank,
            "learning_curve": curve,
-           "ppo": {"timesteps": args.timesteps, "train_s": train_s,
+           "ppo": {"algorithm": args.algorithm, "timesteps": args.timesteps, "train_s": train_s,
                    "model": str(model_path.relative_to(RESULTS.parent.parent)),
                    "hyperparameters": {"policy": "MultiInputPolicy", **PPO_HYPERPARAMETERS}},
            "cost": {"sweep_s_this_session": sweep_s, "mean_layout_s_one_worker": per_layout_s},
-           "live_recheck": f"{min(args.live_check, len(eval_rows))} held-out rows, 2 actions each: identical"}
+           "live_recheck": (f"{min(args.live_check, len(eval_rows))} held-out rows, 2 actions each: identical"
+                            if args.live_check > 0 and eval_rows else "none in this run")}
     out = Path(args.out)
     write_json(out.with_suffix(".json"), doc)
     title = f"{args.env_id}: {len(train_rows)} training / {len(eval_rows)} held-out layouts"
@@ -237,13 +250,18 @@ def main(argv: list[str] | None = None) -> int:
           f"K = {K} candidates per layout; training layouts = seeds 0..{args.train - 1}, held-out layouts = seeds "
           f"{EVAL_OFFSET}..{EVAL_OFFSET + args.eval - 1} (scenario drawn per seed). Every candidate of every layout "
           "was executed in physics once and judged by the paper's test (25 cm lift, 20 cm move, lower, release); "
-          f"the policies are scored on that table (re-checked live on {min(args.live_check, len(eval_rows))} held-out "
-          "layouts, 2 candidates each: identical). "
+          "the policies are scored on that table ("
+          + (f"re-checked live on {min(args.live_check, len(eval_rows))} held-out layouts, 2 candidates each: "
+             "identical). " if args.live_check > 0 and eval_rows else "not re-checked live in this run). ")
+          +
           "Wilson 95 % intervals.\n",
           md_table(["policy (held-out)", "success"], [[p, format_rate(summary[p]["successes"],
                                                                        summary[p]["episodes"])] for p in POLICIES]),
-          f"\nRandom's expected rate over all its choices: {expected_random:.3f}. `best_of_k` = any candidate "
-          "succeeds (hindsight upper bound).\n",
+          f"\nRandom's expected rate over all its choices: {expected_random:.3f}; over {args.random_seeds} "
+          f"generators it scores {summary['random']['mean_successes']:.1f}/{len(eval_rows)} on average (range "
+          f"{summary['random']['min_successes']}-{summary['random']['max_successes']}). `best_of_k` = any candidate "
+          "succeeds (hindsight upper bound). Every policy but `best_of_k` chooses among the valid candidates (the "
+          "action mask).\n",
           md_table(["difference", "pp", "Newcombe 95 %"],
                    [[k, f"{100 * v['difference']:+.1f}", f"[{100 * v['newcombe95'][0]:+.1f}, "
                                                          f"{100 * v['newcombe95'][1]:+.1f}]"]
@@ -252,9 +270,10 @@ def main(argv: list[str] | None = None) -> int:
           + ", ".join(f"{b['rank']}: {b['successes']}/{b['executed']}" for b in by_rank if b["executed"]) + ".\n",
           "\nOutcomes of all held-out candidates: " + ", ".join(f"{k} {v}" for k, v in sorted(outcome_counts.items()))
           + ".\n",
-          f"PPO (Stable-Baselines3, `MultiInputPolicy`, gamma 0: a contextual bandit): {args.timesteps} steps on the "
-          f"training table in {train_s:.0f} s on this machine; the model is `{doc['ppo']['model']}`. Learning curve: "
-          "`grasp_select_policies.png`. Recording the table: "
+          f"PPO ({args.algorithm}, `MultiInputPolicy`, gamma 0: a contextual bandit): {args.timesteps} steps on the "
+          f"training table in {train_s:.0f} s on this machine; the model is `{doc['ppo']['model']}` with its card "
+          "(`torm.env.policy_io.load_policy` checks the env id and observation layout). Learning curve: "
+          f"`{out.with_suffix('.png').name}`. Recording the table: "
           f"{per_layout_s:.0f} s per layout on one worker (K picks + one perception).\n",
           md_table(["PPO steps", "held-out", "training"],
                    [[c["steps"], f"{c['heldout_successes']}/{c['heldout_n']}", f"{c['train_successes']}/{c['train_n']}"]

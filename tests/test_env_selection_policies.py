@@ -46,33 +46,71 @@ def test_heuristics_choose_what_they_say():
         choices("greedy", rows)
 
 
-def test_ppo_learns_a_bandit_whose_second_candidate_always_succeeds(tmp_path):
-    pytest.importorskip("stable_baselines3")
+@pytest.mark.parametrize("algorithm", ["MaskablePPO", "PPO"])
+def test_ppo_learns_a_bandit_whose_second_candidate_always_succeeds(tmp_path, algorithm):
+    pytest.importorskip("sb3_contrib")
     env = TormGraspSelectEnv(top_k=K, object_points=M)  # only its spaces are used (no world is built)
     spaces = (env.observation_space, env.action_space)
     model, curve, secs = train_ppo(_rows(40, 1, 0), _rows(20, 1, 1), spaces, timesteps=2048, eval_every=1024,
-                                   seed=0, model_path=tmp_path / "ppo.zip")
+                                   seed=0, model_path=tmp_path / "ppo.zip", algorithm=algorithm)
+    assert type(model).__name__ == algorithm
     assert curve[0]["steps"] == 0 and curve[-1]["steps"] == 2048 and secs > 0
     assert curve[-1]["heldout_successes"] >= 18, curve  # held-out rows: it picks candidate 1
     assert (tmp_path / "ppo.zip").is_file()
 
 
-def test_the_shipped_stress_policy_loads_and_acts_on_the_live_envs_observations():
-    """The committed PPO policy (docs/envs/grasp_select.md's five lines) reads the live env's observation space:
-    a change of the env's spaces that would break the shipped policy fails here."""
-    pytest.importorskip("stable_baselines3")
+@pytest.mark.parametrize("algorithm", ["MaskablePPO", "PPO"])
+def test_a_trained_policy_never_picks_outside_the_mask_and_its_card_names_its_env(tmp_path, algorithm):
+    pytest.importorskip("sb3_contrib")
+    from torm.env.outcome_table import OutcomeTableEnv
+    from torm.env.policy_io import PolicyFileError, load_policy, save_policy
+
+    env = TormGraspSelectEnv(top_k=K, object_points=M)
+    spaces = (env.observation_space, env.action_space)
+    rows = _rows(8, 1, 0)
+    table = OutcomeTableEnv(rows, *spaces)
+    obs, info = table.reset(options={"index": 1})  # odd row: the last candidate is invalid
+    assert info["action_mask"].tolist() == [True, True, False] and table.action_masks().tolist() == [True, True, False]
+    model, _, _ = train_ppo(rows, rows, spaces, timesteps=256, eval_every=256, seed=0, algorithm=algorithm)
+    save_policy(model, tmp_path / "p.zip", "torm/TormGraspSelect-v0", *spaces, trained_on={"note": "test"})
+    policy = load_policy(tmp_path / "p.zip", env_id="torm/TormGraspSelect-v0", observation_space=spaces[0])
+    assert policy.card["algorithm"] == algorithm and policy.card["action_n"] == K
+    for only in range(K):  # whatever the network prefers, a one-candidate mask leaves that candidate
+        mask = np.arange(K) == only
+        assert policy.act(obs, mask) == only
+    assert choices("ppo", rows, policy.model) and all(
+        r["obs"]["valid"][a] for r, a in zip(rows, choices("ppo", rows, policy.model), strict=True))
+    with pytest.raises(PolicyFileError, match="trained for torm/TormGraspSelect-v0, not torm/TormGraspSelectHard-v0"):
+        load_policy(tmp_path / "p.zip", env_id="torm/TormGraspSelectHard-v0")
+    other = TormGraspSelectEnv(top_k=K + 1, object_points=M)
+    with pytest.raises(PolicyFileError, match="another obs_mode or top_k"):
+        load_policy(tmp_path / "p.zip", observation_space=other.observation_space)
+    (tmp_path / "p.json").unlink()
+    with pytest.raises(PolicyFileError, match="has no card"):
+        load_policy(tmp_path / "p.zip")
+    with pytest.raises(PolicyFileError, match="does not exist"):
+        load_policy(tmp_path / "missing.zip")
+
+
+@pytest.mark.parametrize("name, env_id", [("grasp_select_ppo_stress3", "torm/TormGraspSelectStress-v0"),
+                                          ("grasp_select_ppo_tormgraspselecthard_v0", "torm/TormGraspSelectHard-v0")])
+def test_the_shipped_policies_load_for_their_env_and_act_within_the_mask(name, env_id):
+    """The committed policies (docs/envs/grasp_select.md's five lines) load for the env their card names and read
+    its observation space: a change of the env's spaces that would break them fails here."""
+    pytest.importorskip("sb3_contrib")
     import gymnasium as gym
-    from stable_baselines3 import PPO
 
     import torm.env  # noqa: F401  (registers the envs)
+    from torm.env.policy_io import load_policy
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks/results/policies/grasp_select_ppo_stress3.zip"
-    policy = PPO.load(str(path), device="cpu")
-    env = gym.make("torm/TormGraspSelectStress-v0")  # no world is built before reset
+    path = Path(__file__).resolve().parents[1] / "benchmarks/results/policies" / f"{name}.zip"
+    env = gym.make(env_id)  # no world is built before reset
     try:
-        assert policy.observation_space == env.observation_space and policy.action_space == env.action_space
+        policy = load_policy(path, env_id=env.spec.id, observation_space=env.observation_space)
+        assert policy.model.action_space == env.action_space
         obs = env.observation_space.sample()
-        action = int(policy.predict(obs, deterministic=True)[0])
-        assert env.action_space.contains(action)
+        mask = np.zeros(env.action_space.n, bool)
+        mask[[2, 5]] = True
+        assert policy.act(obs, mask) in (2, 5)
     finally:
         env.close()

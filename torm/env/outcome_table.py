@@ -99,6 +99,7 @@ class OutcomeTableEnv(gym.Env):
         self._obs = [row_observation(r, observation_space) for r in rows]
         self._rows = list(rows)
         self._i: int | None = None
+        self._mask = np.ones(K, dtype=bool)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -110,7 +111,14 @@ class OutcomeTableEnv(gym.Env):
         if not 0 <= self._i < len(self._rows):
             raise ConfigError(f"reset option index={self._i}: the table has rows 0..{len(self._rows) - 1}")
         r = self._rows[self._i]
-        return {k: v.copy() for k, v in self._obs[self._i].items()}, {"seed": r["seed"], "scenario": r["scenario"]}
+        self._mask = self._obs[self._i]["valid"].astype(bool)
+        return ({k: v.copy() for k, v in self._obs[self._i].items()},
+                {"seed": r["seed"], "scenario": r["scenario"], "action_mask": self._mask.copy()})
+
+    def action_masks(self) -> np.ndarray:
+        """(K,) bool: the candidates of the row drawn at the last reset (what sb3-contrib's ``MaskablePPO`` calls;
+        the live env's ``info["action_mask"]``). All True before the first reset."""
+        return self._mask.copy()
 
     def step(self, action):
         if self._i is None:

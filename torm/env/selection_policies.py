@@ -5,12 +5,13 @@ Policies map an observation (or a table row's) to a candidate index:
 - ``random``: a uniformly random *valid* candidate (the action-mask baseline);
 - ``planner``: index 0, the planner's best (TORM's own choice);
 - ``clearance``: the valid candidate farthest from the other perceived objects, ties by the planner's score;
-- ``ppo``: a Stable-Baselines3 PPO policy (:func:`train_ppo`, deterministic);
+- ``ppo``: a trained policy (:func:`train_ppo`: sb3-contrib's ``MaskablePPO`` by default, deterministic, restricted to
+  the valid candidates as the action mask says);
 - ``best_of_k``: hindsight, any candidate of the row succeeds (an upper bound, not a policy).
 
 :func:`train_ppo` trains on :class:`torm.env.outcome_table.OutcomeTableEnv` (one-step episodes, gamma 0: a
-contextual bandit) and scores the deterministic policy on held-out rows along the way. Stable-Baselines3 is the
-optional ``rl`` extra (``pip install "torm-glass[rl]"``).
+contextual bandit) and scores the deterministic policy on held-out rows along the way. Stable-Baselines3 and
+sb3-contrib are the optional ``rl`` extra (``pip install "torm-glass[rl]"``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 
 from torm.env.grasp_select_env import FEATURE_NAMES
 from torm.env.outcome_table import OutcomeTableEnv
+from torm.env.policy_io import ALGORITHMS, masked_action
 from torm.errors import UnknownNameError
 
 log = logging.getLogger(__name__)
@@ -67,7 +69,7 @@ def choices(policy: str, rows: list[dict[str, Any]], model: Any = None,
         elif policy == "clearance":
             out.append(clearance_choice(r["obs"]))
         elif policy == "ppo":
-            out.append(int(model.predict(_as_obs(r["obs"]), deterministic=True)[0]))
+            out.append(masked_action(model, _as_obs(r["obs"]), np.asarray(r["obs"]["valid"], bool)))
         else:
             out.append(None)
     return out
@@ -80,9 +82,10 @@ def successes(rows: list[dict[str, Any]], actions: list[int | None]) -> int:
 
 
 def train_ppo(train_rows: list[dict[str, Any]], eval_rows: list[dict[str, Any]], spaces: tuple[Any, Any],
-              timesteps: int, eval_every: int, seed: int, model_path: str | Path | None = None
-              ) -> tuple[Any, list[dict[str, Any]], float]:
-    """PPO (``MultiInputPolicy``, :data:`PPO_HYPERPARAMETERS`) on the training rows.
+              timesteps: int, eval_every: int, seed: int, model_path: str | Path | None = None,
+              algorithm: str = "MaskablePPO") -> tuple[Any, list[dict[str, Any]], float]:
+    """PPO (``MultiInputPolicy``, :data:`PPO_HYPERPARAMETERS`) on the training rows; ``MaskablePPO`` (the default)
+    samples and learns only among the valid candidates (the table env's ``action_masks``).
 
     Args:
         train_rows: outcome-table rows to train on (:func:`torm.env.outcome_table.record_layout`).
@@ -91,13 +94,21 @@ def train_ppo(train_rows: list[dict[str, Any]], eval_rows: list[dict[str, Any]],
         timesteps: PPO steps (one table episode each).
         eval_every: score the deterministic policy on both row sets every this many steps.
         seed: PPO's seed (the table env's draws too).
-        model_path: where to save the model (``.zip``); None = not saved.
+        model_path: where to save the model (``.zip``); None = not saved (:func:`torm.env.policy_io.save_policy`
+            writes it with its card; this writes the bare file).
+        algorithm: ``MaskablePPO`` (sb3-contrib) or ``PPO`` (Stable-Baselines3, unmasked while training).
 
     Returns:
         (model, learning curve rows ``{steps, heldout_successes, heldout_n, train_successes, train_n}``, seconds).
     """
-    from stable_baselines3 import PPO
+    if algorithm not in ALGORITHMS:
+        raise UnknownNameError("algorithm", algorithm, ALGORITHMS)
     from stable_baselines3.common.callbacks import BaseCallback
+
+    if algorithm == "MaskablePPO":
+        from sb3_contrib import MaskablePPO as Algo  # noqa: N811
+    else:
+        from stable_baselines3 import PPO as Algo  # noqa: N811
 
     env = OutcomeTableEnv(train_rows, *spaces)
     curve: list[dict[str, Any]] = []
@@ -115,7 +126,7 @@ def train_ppo(train_rows: list[dict[str, Any]], eval_rows: list[dict[str, Any]],
                 score(self.model, self.num_timesteps)
             return True
 
-    model = PPO("MultiInputPolicy", env, seed=seed, verbose=0, device="cpu", **PPO_HYPERPARAMETERS)
+    model = Algo("MultiInputPolicy", env, seed=seed, verbose=0, device="cpu", **PPO_HYPERPARAMETERS)
     score(model, 0)
     t = time.perf_counter()
     model.learn(total_timesteps=timesteps, callback=Curve())
