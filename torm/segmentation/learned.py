@@ -317,7 +317,9 @@ class LearnedSegmenter(Segmenter):
             m = (m + f) / 2
         return m
 
-    def _maps(self, rgb: np.ndarray) -> np.ndarray:
+    def network_input(self, rgb: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """(the (1, C, H', W') float32 tensor the network reads, th, tw) for an (H, W, 3 or 6) uint8 image: resized
+        to :attr:`input_width` (th x tw px) and padded to multiples of :attr:`stride` by edge replication."""
         h, w = rgb.shape[:2]
         tw = self.input_width or w
         th = max(int(round(h * tw / w)), 1)
@@ -330,7 +332,11 @@ class LearnedSegmenter(Segmenter):
                 x = cv2.copyMakeBorder(x, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
             parts.append(x)
         x = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)
-        inp = x.astype(np.float32).transpose(2, 0, 1)[None]
+        return x.astype(np.float32).transpose(2, 0, 1)[None], th, tw
+
+    def _maps(self, rgb: np.ndarray) -> np.ndarray:
+        h, w = rgb.shape[:2]
+        inp, th, tw = self.network_input(rgb)
         logits = self.session.run({"image": inp}, ("logits",))[0][0, :, :th, :tw].astype(np.float32)
         out = _sigmoid(logits)
         if len(out) >= 5:  # offsets in px of the image
