@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     probs = {s: probabilities(seg, data[s]["rgb"]) for s in splits}
     net_s = time.perf_counter() - t0
     settings = grid(seg.channels, a.quick, flip_tta=not a.no_flip_tta)
-    default = DEFAULT_CENTRE if seg.channels == 5 else DEFAULT
+    default = DEFAULT_CENTRE if seg.channels >= 5 else DEFAULT  # a centre head (5 maps; 6 with the class head)
     if default not in settings:
         settings.insert(0, dict(default))
     val_rows = []

@@ -271,7 +271,7 @@ class LearnedSegmenter(Segmenter):
         self.postprocess: dict[str, Any] = {k: getattr(c, k) if getattr(c, k) is not None else post.get(k, d)
                                             for k, d in POSTPROCESS_DEFAULTS.items()}
         if self.postprocess["grouping"] is None:
-            self.postprocess["grouping"] = "centre" if self.channels == 5 else "boundary"
+            self.postprocess["grouping"] = "centre" if self.channels >= 5 else "boundary"  # a centre head: 5 or 6
         if self.postprocess["grouping"] != "boundary" and self.channels < 5:
             raise ConfigError(f"learned.grouping {self.postprocess['grouping']!r} needs a model with the centre head "
                               f"(5 output channels); {c.model_path} has {self.channels}: use grouping 'boundary'")
