@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     curve_path = run / "curve.json"
     if "train" in args.phases:
         model, curve, train_s = train_ppo(train_rows, eval_rows, spaces, args.timesteps, args.eval_every,
-                                          args.seed, None, algorithm=args.algorithm)
+                                          args.seed, algorithm=args.algorithm)
         save_policy(model, model_path, args.env_id, *spaces, trained_on={
             "algorithm": args.algorithm, "timesteps": args.timesteps, "seed": args.seed,
             "train_layouts": [int(r["seed"]) for r in train_rows], "hyperparameters": dict(PPO_HYPERPARAMETERS),

@@ -214,8 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         text = path.read_text()
         card = json.loads(text)
         card["postprocess"] = card_entry(doc)
-        second = (text.splitlines() or ["", ""])[1:2] or [""]
-        indent = max(1, len(second[0]) - len(second[0].lstrip()))  # keep the card's own layout
+        lines = text.splitlines()  # keep the card's own indentation
+        indent = max(1, len(lines[1]) - len(lines[1].lstrip())) if len(lines) > 1 else 1
         path.write_text(json.dumps(card, indent=indent) + "\n")
         log.info("wrote the chosen post-processing into %s", path)
     log.info("chosen %s: val %s %.3f (default %.3f)", chosen, a.select_on, best[a.select_on],
