@@ -57,7 +57,8 @@ def save_policy(model: Any, path: str | Path, env_id: str, observation_space: An
         model: a Stable-Baselines3 ``PPO`` or sb3-contrib ``MaskablePPO``.
         path: the ``.zip`` to write.
         env_id: the registered id the policy acts in (versioned, e.g. ``torm/TormGraspSelectStress-v0``).
-        observation_space, action_space: that env's spaces (``Dict``, ``Discrete(K)``).
+        observation_space: that env's observation space (``Dict``).
+        action_space: that env's action space (``Discrete(K)``).
         trained_on: how it was trained (steps, layouts, hyperparameters): copied into the card.
     """
     algo = type(model).__name__
