@@ -78,8 +78,8 @@ def test_a_trained_policy_never_picks_outside_the_mask_and_its_card_names_its_en
     for only in range(K):  # whatever the network prefers, a one-candidate mask leaves that candidate
         mask = np.arange(K) == only
         assert policy.act(obs, mask) == only
-    assert choices("ppo", rows, policy.model) and all(
-        r["obs"]["valid"][a] for r, a in zip(rows, choices("ppo", rows, policy.model), strict=True))
+    picked = choices("ppo", rows, policy.model)
+    assert picked and all(r["obs"]["valid"][a] for r, a in zip(rows, picked, strict=True))
     with pytest.raises(PolicyFileError, match="trained for torm/TormGraspSelect-v0, not torm/TormGraspSelectHard-v0"):
         load_policy(tmp_path / "p.zip", env_id="torm/TormGraspSelectHard-v0")
     other = TormGraspSelectEnv(top_k=K + 1, object_points=M)
