@@ -4,8 +4,9 @@ A realistic trial spends most of its time rendering the 50 PBR views (``capture.
 (``segmentation.options``). This benchmark puts each candidate setting's cost beside what it does to the
 silhouettes, on one thread per process, so that a faster default is chosen on evidence:
 
-- ``--renders``: PBR settings as ``SPPxRENDER_SCALE`` (``16x1.0`` = the default 16 spp traced at the camera's
-  640x360; ``16x0.5`` = traced at 320x180 and resized to 640x360). For every scenario of ``--suites`` (scenario k
+- ``--renders``: PBR settings as ``SPPxRENDER_SCALE[:DENOISER]`` (``16x1.0`` = the default 16 spp traced at the
+  camera's 640x360 with the default denoiser; ``16x0.5`` = traced at 320x180 and resized to 640x360; ``4x1.0:oidn``
+  = 4 spp denoised by OIDN, ``capture.pbr.denoise``). For every scenario of ``--suites`` (scenario k
   gets layout seed k, so table textures and lights vary) a capture of ``--views`` rig views is rendered once per
   setting (one thread per worker process, ``--workers`` processes) and cached under ``--cache`` for the scores.
   The render timing is measured apart: each setting renders ``--time-views`` views of the first scenario in a
@@ -50,13 +51,27 @@ log = logging.getLogger("perception_speed")
 TRIAL_VIEWS = 50
 
 
-def parse_render(text: str) -> tuple[int, float]:
-    """``"16x0.5"`` -> (16 spp, render scale 0.5)."""
-    spp, _, rs = text.partition("x")
+def parse_render(text: str) -> tuple[int, float, str]:
+    """``"16x0.5"`` -> (16 spp, render scale 0.5, the default denoiser); ``"4x1.0:oidn"`` -> (4, 1.0, ``oidn``)."""
+    from torm.capture.render_settings import DENOISERS, PbrSettings
+
+    head, _, dn = text.partition(":")
+    spp, _, rs = head.partition("x")
+    dn = dn or PbrSettings().denoise
+    if dn not in DENOISERS:
+        raise SystemExit(f"--renders entry {text!r}: denoiser {dn!r} is not one of {DENOISERS}")
     try:
-        return int(spp), float(rs or 1.0)
+        return int(spp), float(rs or 1.0), dn
     except ValueError:
-        raise SystemExit(f"--renders entry {text!r}: write SPPxRENDER_SCALE, e.g. 16x1.0 or 16x0.5") from None
+        raise SystemExit(f"--renders entry {text!r}: write SPPxRENDER_SCALE[:DENOISER], e.g. 16x1.0, 16x0.5 or "
+                         "4x1.0:oidn") from None
+
+
+def render_label(spp: int, render_scale: float, denoise: str) -> str:
+    """The row label of a render setting: ``16x1.0`` with the default denoiser, else ``4x1.0:oidn``."""
+    from torm.capture.render_settings import PbrSettings
+
+    return f"{spp}x{render_scale}" + ("" if denoise == PbrSettings().denoise else f":{denoise}")
 
 
 def parse_row(text: str) -> tuple[str, int, bool | None]:
@@ -74,10 +89,15 @@ def parse_row(text: str) -> tuple[str, int, bool | None]:
     return model, w, {"": None, "tta": True, "notta": False}[tta]
 
 
-def _capture_job(args: tuple[str, int, int, int, float, str]) -> dict[str, Any]:
-    """Render one scenario's capture into the cache (one process, one thread); returns folder and seconds/view."""
+def _capture_job(args: tuple[Any, ...]) -> dict[str, Any]:
+    """Render one scenario's capture into the cache (one process, one thread); returns folder and seconds/view.
+
+    ``args``: (scenario, seed, views, spp, render_scale, folder[, denoiser]); no denoiser = the default one."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    scenario, seed, views, spp, render_scale, folder = args
+    scenario, seed, views, spp, render_scale, folder, *rest = args
+    from torm.capture.render_settings import PbrSettings
+
+    denoise = rest[0] if rest else PbrSettings().denoise
     timing = Path(folder) / "render_timing.json"
     if timing.exists():
         return json.loads(timing.read_text())
@@ -85,10 +105,10 @@ def _capture_job(args: tuple[str, int, int, int, float, str]) -> dict[str, Any]:
     from sim.cameras.rig import CameraRigConfig, SimCameraRig
     from sim.world import build_world
     from torm.capture.io import save_capture
-    from torm.capture.render_settings import PbrSettings
 
     world = build_world(scenario, seed, robot=None)
-    r = make_renderer("pbr", world, PbrSettings(spp=spp, render_scale=render_scale, threads=1, cache=False))
+    r = make_renderer("pbr", world, PbrSettings(spp=spp, render_scale=render_scale, denoise=denoise, threads=1,
+                                                cache=False))
     per_view: list[float] = []
     render = r.render
 
@@ -140,23 +160,25 @@ def main(argv: list[str] | None = None) -> int:
     scs = scenarios([s for s in args.suites.split(",") if s])[:args.limit or None]
     ctx = context(vars(args))
     cache = Path(args.cache)
-    jobs = [(name, seed, args.views, spp, rs, str(cache / f"{name}_s{seed}_v{args.views}_spp{spp}_rs{rs}"))
-            for spp, rs in renders for _, name, seed in scs]
+    jobs = [(name, seed, args.views, spp, rs,
+             str(cache / (f"{name}_s{seed}_v{args.views}_spp{spp}_rs{rs}" + ("" if dn == "bilateral" else f"_{dn}"))),
+             dn)
+            for spp, rs, dn in renders for _, name, seed in scs]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max(1, args.workers), mp_context=mp.get_context("spawn")) as ex:
         caps = list(ex.map(_capture_job, jobs))  # cached captures for the scores (their timings are not used)
     log.info("captures ready in %.0f s", time.perf_counter() - t0)
     # timing: each render setting once more in a fresh process of its own (a trial's first view pays the imports
     # and kernel compilation too), one at a time, on the first scenario, nothing cached
-    timing: dict[tuple[int, float], dict[str, Any]] = {}
+    timing: dict[tuple[int, float, str], dict[str, Any]] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for spp, rs in renders:
+        for spp, rs, dn in renders:
             _, name, seed = scs[0]
             with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as ex:
-                timing[(spp, rs)] = ex.submit(_capture_job, (name, seed, args.time_views, spp, rs,
-                                                             str(Path(tmp) / f"{spp}x{rs}"))).result()
-            log.info("%sx%s: %.3f s per view after a first view of %.2f s", spp, rs,
-                     timing[(spp, rs)]["render_s_per_view"], timing[(spp, rs)]["first_view_s"])
+                timing[(spp, rs, dn)] = ex.submit(_capture_job, (name, seed, args.time_views, spp, rs,
+                                                                 str(Path(tmp) / f"{spp}x{rs}_{dn}"), dn)).result()
+            log.info("%s: %.3f s per view after a first view of %.2f s", render_label(spp, rs, dn),
+                     timing[(spp, rs, dn)]["render_s_per_view"], timing[(spp, rs, dn)]["first_view_s"])
     segs: dict[tuple[int, str, bool | None], tuple[str, Any]] = {}
 
     def segmenter(model: str, width: int, tta: bool | None) -> tuple[str, Any]:
@@ -172,20 +194,20 @@ def main(argv: list[str] | None = None) -> int:
 
     results: list[dict[str, Any]] = []
     for job in jobs:
-        name, seed, _, spp, rs, folder = job
+        name, seed, _, spp, rs, folder, dn = job
         suite = next(s for s, n, k in scs if n == name and k == seed)
         cap = load_capture(folder)
         traced_w = int(round(cap.views[0].rgb.shape[1] * rs))
         row_segs = [segmenter(model, width or traced_w, tta) for model, width, tta in rows]
         for label, seg in row_segs:
             m = segment_and_score(seg, cap)
-            results.append({"render": f"{spp}x{rs}", "spp": spp, "render_scale": rs, "segmenter": label,
-                            "suite": suite, "scenario": name, "seed": seed,
+            results.append({"render": render_label(spp, rs, dn), "spp": spp, "render_scale": rs, "denoise": dn,
+                            "segmenter": label, "suite": suite, "scenario": name, "seed": seed,
                             "table": table_texture(seed, (1.7, 1.8)).pattern,
-                            "render_s_per_view": timing[(spp, rs)]["render_s_per_view"],
-                            "first_view_s": timing[(spp, rs)]["first_view_s"],
+                            "render_s_per_view": timing[(spp, rs, dn)]["render_s_per_view"],
+                            "first_view_s": timing[(spp, rs, dn)]["first_view_s"],
                             "seg_s_per_view": m.pop("seconds_per_view"), **m})
-        log.info("%s %sx%s: %s", name, spp, rs, ", ".join(f"{r['segmenter']}: {r['glass_iou']:.2f}"
+        log.info("%s %s: %s", name, render_label(spp, rs, dn), ", ".join(f"{r['segmenter']}: {r['glass_iou']:.2f}"
                                                           for r in results[-len(row_segs):]))
     doc = {"context": ctx, "scenarios": len(scs), "trial_views": TRIAL_VIEWS, "timing_scenario": scs[0][1],
            "results": results,

@@ -25,9 +25,11 @@ INTEGRATORS = ("glass_path", "path")
 SAMPLERS = ("ldsampler", "independent", "multijitter", "stratified")
 #: Sample counts the ldsampler accepts (square powers of two, at least 4: it renders 1 as 4).
 LDSAMPLER_SPP = (4, 16, 64, 256, 1024, 4096)
-#: Denoisers applied to the tone-mapped 8-bit image: ``none``; ``nlmeans`` = OpenCV's
-#: ``fastNlMeansDenoisingColored`` with strength ``denoise_strength``; ``bilateral`` = OpenCV's bilateral filter.
-DENOISERS = ("none", "nlmeans", "bilateral")
+#: Denoisers: ``none``; on the tone-mapped 8-bit image ``nlmeans`` = OpenCV's ``fastNlMeansDenoisingColored`` with
+#: strength ``denoise_strength``, ``bilateral`` = OpenCV's bilateral filter; on the linear radiance before tone
+#: mapping ``oidn`` / ``oidn_fast`` = Intel Open Image Denoise's ``RT`` filter at quality high / fast
+#: (:mod:`sim.render.oidn`; optional ``pyoidn``: ``pip install 'torm-glass[denoise]'``; strength unused).
+DENOISERS = ("none", "nlmeans", "bilateral", "oidn", "oidn_fast")
 
 
 @dataclass(frozen=True)
@@ -44,7 +46,7 @@ class PbrSettings:
         sampler: one of :data:`SAMPLERS`.
         denoise: one of :data:`DENOISERS`.
         denoise_strength: filter strength in 8-bit grey levels (``h`` of non-local means, sigma colour of the
-            bilateral filter).
+            bilateral filter); OIDN has no strength and ignores it.
         render_scale: the RGB pass is traced at this fraction of each camera's size and resized (area / linear
             interpolation) to it; 1.0 = native. Instance ids are always traced at the native size. 0 = auto: the
             width the image segmenter reads (a trial resolves it, :func:`torm.pipeline.resolve_render_scale`:
