@@ -198,3 +198,38 @@ def test_auto_render_scale_traces_the_width_the_segmenter_reads(tmp_path, monkey
         backend.close()
     # outside a trial (no segmenter to match) auto is native
     assert MitsubaRenderer(tiny_world(), PbrSettings(render_scale=0)).settings.render_scale == 1.0
+
+
+def test_auto_spp_reads_the_sample_count_from_the_segmenters_card(tmp_path):
+    import json
+    import shutil
+
+    from torm import config
+    from torm.capture.render_settings import DEFAULT_SPP
+    from torm.errors import ConfigError
+    from torm.pipeline import TrialConfig, resolve_spp, trial_context
+    from torm.segmentation.learned import MODELS_DIR
+
+    def cfg(*extra: str) -> TrialConfig:
+        return config.from_dict(TrialConfig, {"scenario": "rw1"}, overrides=list(extra))
+
+    assert PbrSettings().spp == 0  # auto is the default
+    assert resolve_spp(cfg("capture.pbr.spp=64")) == 64  # explicit values are kept
+    assert resolve_spp(cfg()) == DEFAULT_SPP == 16  # GT masks: the default count
+    learned = "segmentation.segmenter=learned"
+    assert resolve_spp(cfg(learned)) == DEFAULT_SPP  # v3's card names no count
+    assert resolve_spp(cfg(learned, "segmentation.options.model=v7q")) == 4  # measured on its card
+    assert resolve_spp(cfg(learned, "segmentation.options.model=v7q", "method=oracle")) == DEFAULT_SPP
+    # a user's model: its card decides; a card without the field (or a nonsense value) falls back to the default
+    model = tmp_path / "mine.onnx"
+    shutil.copy(MODELS_DIR / "learned_seg_v7q.onnx", model)
+    mine = (learned, f"segmentation.options.model={model}")
+    for card, want in (({"capture": {"pbr_spp": 64}}, 64), ({}, DEFAULT_SPP), ({"capture": {"pbr_spp": -3}}, 16)):
+        model.with_suffix(".json").write_text(json.dumps(card))
+        assert resolve_spp(cfg(*mine)) == want
+    ctx = trial_context(cfg(learned, "segmentation.options.model=v7q", "capture.renderer=pbr"))
+    assert ctx["render_spp"] == 4 and ctx["render_scale"] == 1.0
+    with pytest.raises(ConfigError, match="auto"):
+        cfg("capture.pbr.spp=-1")
+    # outside a trial (no segmenter card) auto renders the default count
+    assert MitsubaRenderer(tiny_world(), PbrSettings()).settings.spp == DEFAULT_SPP

@@ -87,7 +87,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
     file name and content hash), ``segmenter_postprocess`` (:func:`~torm.segmentation.learned.postprocess_label`:
     the card's calibration can change without the file) and ``segmenter_input_px`` (the width the network reads;
     0 = the capture's); with the ``pbr`` renderer ``render_scale`` (the traced fraction of the capture size,
-    :func:`resolve_render_scale`).
+    :func:`resolve_render_scale`) and ``render_spp`` (samples per pixel, :func:`resolve_spp`).
     """
     seg = config.segmentation
     segmenter = f"noisy:{seg.preset}" if seg.segmenter == "noisy" else seg.segmenter
@@ -132,6 +132,7 @@ def trial_context(config: TrialConfig) -> dict[str, Any]:
         ctx["segmenter_input_px"] = learned_input_width(config)
     if config.capture.renderer == "pbr":
         ctx["render_scale"] = resolve_render_scale(config)
+        ctx["render_spp"] = resolve_spp(config)
     return ctx
 
 
@@ -166,6 +167,23 @@ def resolve_render_scale(config: TrialConfig) -> float:
     return 1.0 if width <= 0 else min(1.0, max(0.05, width / capture_w))
 
 
+def resolve_spp(config: TrialConfig) -> int:
+    """The PBR samples per pixel of a trial: ``capture.pbr.spp``, or for ``0`` (auto) the count the ``learned``
+    segmenter's model card states it reads at unchanged quality (:func:`torm.segmentation.learned.card_capture_spp`),
+    else :data:`torm.capture.render_settings.DEFAULT_SPP` (every other segmenter and method)."""
+    from torm.capture.render_settings import DEFAULT_SPP
+
+    spp = int(config.capture.pbr.spp)
+    if spp != 0:
+        return spp
+    seg = config.segmentation
+    if config.method != "torm" or seg.segmenter != "learned":
+        return DEFAULT_SPP
+    from torm.segmentation.learned import LearnedConfig, card_capture_spp
+
+    return card_capture_spp(LearnedConfig(model=str(seg.options.get("model") or "")).model_path) or DEFAULT_SPP
+
+
 def make_backend(config: TrialConfig) -> Any:
     """The backend named by ``config.backend`` (the simulated one is built from scenario + seed)."""
     if config.backend == "sim":
@@ -179,7 +197,7 @@ def make_backend(config: TrialConfig) -> Any:
         world = build_world(config.scenario, config.seed, robot=config.robot, realism=realism)
         cam = CameraRigConfig(n_views=config.capture.n_views, scale=config.capture.scale)
         depth = make_depth_model(config.capture.depth_model, config.capture.depth_options)
-        pbr = replace(config.capture.pbr, render_scale=resolve_render_scale(config))
+        pbr = replace(config.capture.pbr, render_scale=resolve_render_scale(config), spp=resolve_spp(config))
         backend = SimBackend(world, camera_config=cam, realism=realism, renderer=config.capture.renderer,
                              render_settings=pbr, depth_model=depth, depth_seed=config.seed)
         backend.reference = bool(config.capture.reference)

@@ -38,7 +38,7 @@ from sim.render.base import RenderCamera, RenderedView, RenderError
 from sim.render.cache import RenderCache, cache_key, canonical, settings_for_key
 from sim.render.mitsuba_env import load_mitsuba
 from sim.render.scene import SCENE_BUILDER_VERSION, PbrScene, build_scene_dict, describe_world, load_scene
-from torm.capture.render_settings import PbrSettings
+from torm.capture.render_settings import DEFAULT_SPP, PbrSettings
 from torm.runtime import free_cores
 
 log = logging.getLogger(__name__)
@@ -205,6 +205,8 @@ class MitsubaRenderer:
         self.settings = settings or PbrSettings()
         if self.settings.render_scale == 0:  # auto without a segmenter to match (trials resolve it before): native
             self.settings = replace(self.settings, render_scale=1.0)
+        if self.settings.spp == 0:  # auto without a segmenter card (trials resolve it before): the default count
+            self.settings = replace(self.settings, spp=DEFAULT_SPP)
         self.cache = cache if cache is not None else RenderCache()
         self.centre = centre
         self.appearance_seed = appearance_seed

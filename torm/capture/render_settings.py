@@ -25,6 +25,9 @@ INTEGRATORS = ("glass_path", "path")
 SAMPLERS = ("ldsampler", "independent", "multijitter", "stratified")
 #: Sample counts the ldsampler accepts (square powers of two, at least 4: it renders 1 as 4).
 LDSAMPLER_SPP = (4, 16, 64, 256, 1024, 4096)
+#: Samples per pixel when ``spp`` is 0 (auto) and no segmenter card names a count: the count every committed PBR
+#: result before 2026-12-07 used (16 spp + bilateral: ``benchmarks/results/render.md``).
+DEFAULT_SPP = 16
 #: Denoisers: ``none``; on the tone-mapped 8-bit image ``nlmeans`` = OpenCV's ``fastNlMeansDenoisingColored`` with
 #: strength ``denoise_strength``, ``bilateral`` = OpenCV's bilateral filter; on the linear radiance before tone
 #: mapping ``oidn`` / ``oidn_fast`` = Intel Open Image Denoise's ``RT`` filter at quality high / fast
@@ -37,7 +40,9 @@ class PbrSettings:
     """Physically based (Mitsuba 3 path tracer) render settings.
 
     Attributes:
-        spp: samples per pixel of the RGB pass (>= 1).
+        spp: samples per pixel of the RGB pass (>= 1); 0 = auto: the sample count the image segmenter reads at
+            unchanged quality, from its model card (``capture.pbr_spp``; a trial resolves it,
+            :func:`torm.pipeline.resolve_spp`), else :data:`DEFAULT_SPP` (every other segmenter, and outside a trial).
         max_depth: longest light path in bounces (``path`` integrator; -1 = unbounded). Solid glass needs
             at least 2 refractions plus the surface behind it; hollow glass 4 interfaces plus total internal
             reflections: 8 keeps both.
@@ -59,7 +64,7 @@ class PbrSettings:
         cache: read and write the on-disk render cache (``TORM_CACHE_DIR``, default ``~/.cache/torm``).
     """
 
-    spp: Annotated[int, Range(1, 65_536, "samples per pixel; 16 is the default")] = 16
+    spp: Annotated[int, Range(0, 65_536, "samples per pixel; 0 = auto (the segmenter's card, else 16)")] = 0
     max_depth: Annotated[int, Range(-1, 1024, "bounces; -1 = unbounded")] = 8
     rr_depth: Annotated[int, Range(1, 1024, "bounces before Russian roulette")] = 5
     integrator: str = "glass_path"
@@ -74,8 +79,8 @@ class PbrSettings:
 
     def __post_init__(self) -> None:
         check_finite(self, "capture.pbr")  # ranges and NaN / inf (torm.config), also when built in Python
-        if self.spp < 1:
-            raise ConfigError(f"capture.pbr.spp must be >= 1 sample per pixel, got {self.spp}")
+        if self.spp < 0:
+            raise ConfigError(f"capture.pbr.spp must be >= 1 sample per pixel or 0 (auto), got {self.spp}")
         if self.max_depth != -1 and self.max_depth < 1:
             raise ConfigError(f"capture.pbr.max_depth must be >= 1 bounce (or -1 = unbounded), got {self.max_depth}")
         if self.rr_depth < 1:
@@ -84,7 +89,7 @@ class PbrSettings:
             raise UnknownNameError("capture.pbr.integrator", self.integrator, INTEGRATORS)
         if self.sampler not in SAMPLERS:
             raise UnknownNameError("capture.pbr.sampler", self.sampler, SAMPLERS)
-        if self.sampler == "ldsampler" and self.spp not in LDSAMPLER_SPP:
+        if self.sampler == "ldsampler" and self.spp and self.spp not in LDSAMPLER_SPP:
             raise ConfigError(f"capture.pbr.spp={self.spp}: the ldsampler needs a square power of two "
                               f"{LDSAMPLER_SPP} (Mitsuba would round it up silently); pick one or set "
                               f"capture.pbr.sampler to one of {SAMPLERS[1:]}")

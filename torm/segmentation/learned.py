@@ -189,6 +189,14 @@ def card_input_width(model_path: str | Path) -> int:
     return training_width(_read_card(model_path))
 
 
+def card_capture_spp(model_path: str | Path) -> int | None:
+    """The path-traced sample count per pixel a model reads at unchanged quality, from its card
+    (``capture.pbr_spp``, measured by ``benchmarks/perception_speed.py`` and a closed-loop run); None when the card
+    is missing or names none (the renderer's default count then applies)."""
+    spp = (_read_card(model_path).get("capture") or {}).get("pbr_spp")
+    return int(spp) if isinstance(spp, int) and spp >= 1 else None
+
+
 def _read_card(model_path: str | Path) -> dict[str, Any]:
     """The model card beside ``model_path`` (``<model>.json``); ``{}`` when missing or unreadable."""
     card = Path(model_path).expanduser().with_suffix(".json")
