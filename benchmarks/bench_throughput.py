@@ -10,7 +10,9 @@ by default) is started fresh every time (old results are moved aside into ``old-
 opened with ``torm report``.
 
 Run: ``MUJOCO_GL=egl python benchmarks/bench_throughput.py [--suite rw] [--scenario rw1 ...]
-[--trials 1] [--method torm] [--workers 2] [--timeout 1800] [--set capture.n_views=20]``.
+[--trials 1] [--method torm] [--workers 2] [--timeout 1800] [--set capture.n_views=20] [--baseline]``.
+``--baseline`` runs the same grid again right after with only ``--baseline-set`` overrides (none: the simulator-mask
+grid) and writes the wall-time ratio of the two grids (one run, same machine state).
 ``contended`` is true when the 1-minute load before the run was above half the cores (the numbers
 are then pessimistic). Benchmark trials default to the ``measured`` realism profile (``--set
 world.realism=ideal`` for the ideal world); ``--name throughput_measured`` writes ``throughput_measured.{json,md}``.
@@ -85,6 +87,7 @@ def summarise(run_dir: Path, config: BenchConfig, wall_s: float, load_before: tu
         "wall_s": round(wall_s, 1),
         "trials_per_hour": _r(tph, 1),
         "realism": sorted({str((r.get("context") or {}).get("realism")) for r in run.rows}),
+        "what_ran": sorted({what_ran(r.get("context") or {}) for r in run.rows}),
         "per_method": per_method,
         "failure_categories": failures,
         "machine": {"cpu": cpu_model(), "cores": cores, "platform": platform.platform(),
@@ -94,6 +97,16 @@ def summarise(run_dir: Path, config: BenchConfig, wall_s: float, load_before: tu
         "versions": package_versions(),
         "git": (run.manifest or {}).get("git"),
     }
+
+
+#: trial-context keys named in a result's "what ran" line (torm.pipeline.trial_context)
+WHAT_RAN_KEYS = ("method", "segmenter", "segmenter_model", "segmenter_postprocess", "segmenter_input_px", "renderer",
+                 "render_spp", "render_scale", "depth_model", "realism")
+
+
+def what_ran(ctx: dict) -> str:
+    """A trial context as one line: ``key value`` for each of :data:`WHAT_RAN_KEYS` that it has."""
+    return ", ".join(f"{k} {ctx[k]}" for k in WHAT_RAN_KEYS if ctx.get(k) is not None)
 
 
 def write_markdown(result: dict, path: Path) -> None:
@@ -108,10 +121,19 @@ def write_markdown(result: dict, path: Path) -> None:
         f"{result['machine']['loadavg_before']}; contended: **{str(result['contended']).lower()}**. Realism profile "
         f"of the trials: {', '.join(result.get('realism') or ['?'])}.",
         "",
+        "What ran (from the trials' contexts): " + "; ".join(f"`{w}`" for w in result.get("what_ran", [])) + ".",
+        "",
         f"**{result['trials_per_hour']} trials/hour** ({result['trials']} trials in {result['wall_s']} s wall time, "
         "each trial an isolated worker process).",
         "",
     ]
+    base = result.get("baseline")
+    if base:
+        lines += [f"**Baseline grid in the same run** (the same grid with overrides "
+                  f"{', '.join(f'`{o}`' for o in base['overrides']) or 'none'}, run right after; what ran: "
+                  + "; ".join(f"`{w}`" for w in base.get("what_ran", [])) + f"): {base['trials_per_hour']} "
+                  f"trials/hour, {base['wall_s']} s wall time, objects {base['objects_success']}/{base['objects']}. "
+                  f"**This grid took {result['wall_ratio_vs_baseline']:.2f}x the baseline's wall time.**", ""]
     methods = list(result["per_method"].values())
     stages = list(methods[0]["stage_mean_s"]) if methods else []  # the same stages for every method
     lines.append("Mean seconds per stage of a trial (trials that returned); `worker` = mean wall time of the "
@@ -149,6 +171,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--results-dir", default=str(RESULTS), help=f"where the result files go (default {RESULTS})")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--name", default="throughput", help="result file stem (default throughput)")
+    ap.add_argument("--baseline", action="store_true",
+                    help="run the same grid again right after with --baseline-set overrides only (default none: the "
+                         "simulator-mask grid) and report the wall-time ratio")
+    ap.add_argument("--baseline-set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s",
                         datefmt="%H:%M:%S")
@@ -161,6 +187,22 @@ def main(argv: list[str] | None = None) -> int:
     run_benchmark(config, run_dir, fresh=True, progress=not args.no_progress)
     wall = time.monotonic() - t0
     result = summarise(run_dir, config, wall, load_before, os.getloadavg())
+    if args.baseline:
+        import dataclasses
+
+        b_config = dataclasses.replace(config, overrides=tuple(args.baseline_set))
+        b_dir = run_dir.with_name(run_dir.name + "_baseline")
+        b_load = os.getloadavg()
+        t0 = time.monotonic()
+        run_benchmark(b_config, b_dir, fresh=True, progress=not args.no_progress)
+        b_wall = time.monotonic() - t0
+        b = summarise(b_dir, b_config, b_wall, b_load, os.getloadavg())
+        result["baseline"] = {"overrides": list(args.baseline_set), "run_dir": str(b_dir), "wall_s": b["wall_s"],
+                              "trials_per_hour": b["trials_per_hour"], "what_ran": b["what_ran"],
+                              "objects_success": sum(v["objects_success"] for v in b["per_method"].values()),
+                              "objects": sum(v["objects"] for v in b["per_method"].values()),
+                              "per_method": b["per_method"], "loadavg_before": b["machine"]["loadavg_before"]}
+        result["wall_ratio_vs_baseline"] = round(wall / b_wall, 3) if b_wall > 0 else None
     out = Path(args.results_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")

@@ -140,7 +140,35 @@ class _Sim:
         self._warn0 = self._warning_counts()
 
     def check(self) -> None:
-        """Raise PhysicsError if the state is not finite, MuJoCo warned, or contacts/objects exploded."""
+        """Raise PhysicsError if the state is not finite, MuJoCo warned, or contacts/objects exploded.
+
+        Runs after every control tick, so each test is a single reduction that rejects the healthy case at once; the
+        offending values are looked up only when one trips (same errors as :meth:`check_reference`)."""
+        d = self.data
+        # a NaN or inf anywhere makes the sum non-finite (so does a sum beyond 1e308: an exploded state as well)
+        if not np.isfinite(d.qpos.sum() + d.qvel.sum() + d.qacc.sum()):
+            raise PhysicsError(f"simulation state became NaN/inf at t = {d.time:.3f} s; the trial is aborted")
+        warn = d.warning.number
+        if (warn > self._warn0).any():
+            names = [mujoco.mjtWarning(i).name for i in np.nonzero(warn > self._warn0)[0]]
+            raise PhysicsError(f"MuJoCo warning(s) {names} at t = {d.time:.3f} s; the trial is aborted")
+        n = d.nefc
+        # every constraint force within the limit -> every contact force within it (only contacts are tested)
+        if n and np.abs(d.efc_force[:n]).max() > self.config.max_contact_force:
+            contact = d.efc_type[:n] >= int(mujoco.mjtConstraint.mjCNSTR_CONTACT_FRICTIONLESS)
+            if np.any(contact):
+                f = float(np.max(np.abs(d.efc_force[:n][contact])))
+                if f > self.config.max_contact_force:
+                    raise PhysicsError(f"contact force {f:.0f} N exceeds {self.config.max_contact_force:.0f} N at "
+                                       f"t = {d.time:.3f} s (exploding contact); the trial is aborted")
+        if len(self._obj_lin):
+            v2 = float(np.square(d.qvel[self._obj_lin]).sum(axis=1).max())
+            if v2 > self.config.max_object_speed ** 2:
+                raise PhysicsError(f"an object moves at {np.sqrt(v2):.1f} m/s (> {self.config.max_object_speed} m/s)"
+                                   f" at t = {d.time:.3f} s; the trial is aborted")
+
+    def check_reference(self) -> None:
+        """The plain form of :meth:`check` (each condition tested element by element), which tests compare it to."""
         d = self.data
         if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel)) and np.all(np.isfinite(d.qacc))):
             raise PhysicsError(f"simulation state became NaN/inf at t = {d.time:.3f} s; the trial is aborted")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -117,3 +118,35 @@ def test_capture_through_the_backend_sees_the_glass():
         assert all(m is not None and (m == 1).sum() > 5 for m in masks)  # the glass cylinder is seen
     finally:
         b.close()
+
+
+def _outcome(fn) -> str:
+    try:
+        fn()
+    except PhysicsError as exc:
+        return str(exc).split(" at t =")[0]
+    return "ok"
+
+
+def test_the_per_tick_health_check_agrees_with_its_reference_form():
+    from sim.backend import SimBackendConfig
+
+    for cfg in (SimBackendConfig(), SimBackendConfig(max_contact_force=1.0), SimBackendConfig(max_object_speed=0.01)):
+        b = SimBackend(build_world("rw1", seed=0), cfg)
+        sim, d = b._sim, b.world.data
+        mujoco.mj_step(b.world.model, d, nstep=20)  # the object rests on the table: contacts are active
+        assert d.nefc > 0
+        assert _outcome(sim.check) == _outcome(sim.check_reference)
+        lin = sim._obj_lin[0]
+        for index, value in ((lin[0], 0.3), (lin[2], -0.02), (lin[1], np.nan), (lin[0], np.inf)):
+            saved = d.qvel[index]
+            d.qvel[index] = value
+            want = _outcome(sim.check_reference)
+            assert _outcome(sim.check) == want, (cfg, index, value)
+            d.qvel[index] = saved
+    # each kind of failure is reached: NaN state, contact force, object speed
+    b = SimBackend(build_world("rw1", seed=0), SimBackendConfig(max_object_speed=0.01))
+    b.world.data.qvel[b._sim._obj_lin[0][0]] = 0.3
+    assert "moves at 0.3 m/s" in _outcome(b._sim.check)
+    b.world.data.qacc[0] = np.nan
+    assert "NaN/inf" in _outcome(b._sim.check)
