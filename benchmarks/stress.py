@@ -50,8 +50,8 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "runs"
 #: the context keys that say what produced a row (the report's header)
-WHAT_RAN = ("segmenter", "segmenter_model", "segmenter_postprocess", "renderer", "depth_model", "reconstruction_mode",
-            "table")
+WHAT_RAN = ("segmenter", "segmenter_model", "segmenter_postprocess", "renderer", "render_spp", "render_scale",
+            "depth_model", "reconstruction_mode", "table")
 
 
 def grip_floor_n() -> float:

@@ -170,7 +170,7 @@ def test_report_header_names_what_ran_and_a_comparison_warns_on_different_worlds
 
     md = write_report([run_dirs / "a"], tmp_path / "one") and (tmp_path / "one" / "report.md").read_text()
     header = _table(md, "Method | Realism")
-    assert ["torm", "measured", "–", "gt", "–", "–", "–", "mujoco", "–", "ideal", "declared", "sim"] in header
+    assert ["torm", "measured", "–", "gt", "–", "–", "–", "mujoco", "–", "–", "ideal", "declared", "sim"] in header
     assert re.search(r"run identity [0-9a-f]{16}", md) and "config hash" not in md
     b = tmp_path / "b"
     shutil.copytree(run_dirs / "b", b)

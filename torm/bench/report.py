@@ -432,9 +432,10 @@ def throughput_table(run: Run) -> list[Block]:
 
 #: Context keys of a trial record that say what produced it (:func:`torm.pipeline.trial_context`), as headers.
 WHAT_RAN = ("realism", "reconstruction_mode", "segmenter", "segmenter_model", "segmenter_postprocess",
-            "segmenter_input_px", "renderer", "render_scale", "depth_model", "table", "backend")
+            "segmenter_input_px", "renderer", "render_scale", "render_spp", "depth_model", "table", "backend")
 WHAT_RAN_LABELS = ("Realism", "Reconstruction", "Segmenter", "Segmenter model", "Segmenter post-processing",
-                   "Segmenter input (px)", "Renderer", "Render scale", "Depth model", "Table", "Backend")
+                   "Segmenter input (px)", "Renderer", "Render scale", "Render samples / px", "Depth model", "Table",
+                   "Backend")
 
 
 def what_ran(rows: list[dict[str, Any]]) -> dict[str, list[str]]:
