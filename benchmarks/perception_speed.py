@@ -89,15 +89,13 @@ def parse_row(text: str) -> tuple[str, int, bool | None]:
     return model, w, {"": None, "tta": True, "notta": False}[tta]
 
 
-def _capture_job(args: tuple[Any, ...]) -> dict[str, Any]:
+def _capture_job(args: tuple[str, int, int, int, float, str, str]) -> dict[str, Any]:
     """Render one scenario's capture into the cache (one process, one thread); returns folder and seconds/view.
 
-    ``args``: (scenario, seed, views, spp, render_scale, folder[, denoiser]); no denoiser = the default one."""
+    ``args``: (scenario, seed, views, spp, render_scale, folder, denoiser)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    scenario, seed, views, spp, render_scale, folder, *rest = args
+    scenario, seed, views, spp, render_scale, folder, denoise = args
     from torm.capture.render_settings import PbrSettings
-
-    denoise = rest[0] if rest else PbrSettings().denoise
     timing = Path(folder) / "render_timing.json"
     if timing.exists():
         return json.loads(timing.read_text())
