@@ -124,7 +124,7 @@ def write_markdown(result: dict, path: Path) -> None:
         "What ran (from the trials' contexts): " + "; ".join(f"`{w}`" for w in result.get("what_ran", [])) + ".",
         "",
         f"**{result['trials_per_hour']} trials/hour** ({result['trials']} trials in {result['wall_s']} s wall time, "
-        "each trial an isolated worker process).",
+        f"each trial an isolated worker process, started by `{c.get('start_method', 'spawn')}`).",
         "",
     ]
     base = result.get("baseline")
@@ -167,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per trial")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN)
+    ap.add_argument("--start-method", choices=("forkserver", "spawn"), default="forkserver",
+                    help="how each trial's process starts (default forkserver, as torm bench)")
     ap.add_argument("--run-dir", default=str(RUN_DIR), help=f"run folder (default {RUN_DIR})")
     ap.add_argument("--results-dir", default=str(RESULTS), help=f"where the result files go (default {RESULTS})")
     ap.add_argument("--no-progress", action="store_true")
@@ -180,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
                         datefmt="%H:%M:%S")
     config = BenchConfig(suite=args.suite, scenarios=parse_list(args.scenario), trials=args.trials,
                          methods=parse_list(args.method) or ("torm",), workers=args.workers, timeout_s=args.timeout,
-                         overrides=tuple(args.overrides), trial_fn=args.trial_fn)
+                         overrides=tuple(args.overrides), trial_fn=args.trial_fn,
+                         start_method=args.start_method)
     run_dir = Path(args.run_dir)
     load_before = os.getloadavg()
     t0 = time.monotonic()

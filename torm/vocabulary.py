@@ -27,6 +27,7 @@ CLASSES: tuple[str, ...] = ("transparent", "opaque")
 #: Benchmark engines (``torm bench --engine``) and rerun recording modes of a bench (``--record``).
 ENGINES: tuple[str, ...] = ("pool", "ray")
 RECORD_MODES: tuple[str, ...] = ("none", "failures", "all")
+START_METHODS: tuple[str, ...] = ("forkserver", "spawn")
 
 _SUITES_DIR = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "suites"
 

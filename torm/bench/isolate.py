@@ -10,8 +10,10 @@ the runner, an error in the runner) first gets SIGTERM, which the worker turns i
 the trial so its ``finally`` blocks run (a real backend's ``close`` cancels the arm's motion and
 disables it), and ``stop_grace_s`` to exit before the whole group is SIGKILLed.
 
-Costs about one interpreter start per trial (0.1 s, plus the trial's own imports), negligible
-against a closed-loop trial (tens of seconds to minutes).
+Costs one interpreter start per trial plus the trial's own imports: about 2.4 s on a 2-core machine
+(torch 1.3 s), a tenth of a realistic closed-loop trial. ``TrialJob.start_method="forkserver"`` pays the
+imports once: each worker is then a fork of a server that imported them and never started a thread
+(:mod:`torm.bench.forkserver`); its own session, log, SIGTERM handling and result file are the same.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from typing import Any
 from torm.bench.results import utc_now
 from torm.bench.rows import failure_row, ok_row, trial_failed
 from torm.bench.spec import TrialSpec
+from torm.vocabulary import START_METHODS
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +61,8 @@ class TrialJob:
         engine: recorded in the row's ``run`` metadata.
         session: the runner session id, recorded in ``run``.
         stop_grace_s: SIGTERM -> SIGKILL grace of a worker that must stop (timeout, cancel).
+        start_method: ``spawn`` (a fresh interpreter per trial) or ``forkserver`` (a fork of a server that
+            imported the libraries once; falls back to ``spawn``, with a warning, where the server cannot start).
     """
 
     trial_fn: str
@@ -70,6 +75,13 @@ class TrialJob:
     engine: str = "pool"
     session: int = 0
     stop_grace_s: float = 10.0
+    start_method: str = "spawn"
+
+    def __post_init__(self) -> None:
+        if self.start_method not in START_METHODS:
+            from torm.errors import UnknownNameError
+
+            raise UnknownNameError("start_method", self.start_method, START_METHODS)
 
 
 @dataclass
@@ -158,33 +170,31 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
     if job.record != "none" and job.recordings_dir:
         Path(job.recordings_dir).mkdir(parents=True, exist_ok=True)
         record_path = str(Path(job.recordings_dir) / f"{safe_name(spec.key)}.rrd")
-    job_path.write_text(json.dumps({
-        "spec": spec.as_dict(), "overrides": list(job.overrides), "trial_fn": job.trial_fn,
-        "record_path": record_path, "result_path": str(result_path), "parent_pid": os.getpid(),
-        "stop_grace_s": job.stop_grace_s,
-    }))
     env = dict(os.environ)
     for name in THREAD_ENV:
         env[name] = str(job.threads)
     env.setdefault("MUJOCO_GL", "egl")
     env["PYTHONUNBUFFERED"] = "1"
+    server = _forkserver(job, env)
+    job_path.write_text(json.dumps({
+        "spec": spec.as_dict(), "overrides": list(job.overrides), "trial_fn": job.trial_fn,
+        "record_path": record_path, "result_path": str(result_path),
+        "parent_pid": server.pid if server is not None else os.getpid(),  # whose death orphans the worker
+        "stop_grace_s": job.stop_grace_s,
+    }))
     stop = prepare_driver_stop(spec, job)  # before the trial: after a SIGKILL only the stop itself is left
     started, t0 = utc_now(), time.monotonic()
     status = None
     proc = None
     try:
-        cmd = [sys.executable, "-m", "torm.bench.worker", str(job_path)]
-        with open(log_path, "wb") as logf:
-            if canceller is None:
-                proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
-                                        env=env, start_new_session=True)
-            else:
-                with canceller.lock:  # cancel() sets stop before taking the lock: no worker escapes it
-                    if canceller.stop.is_set():
-                        raise InterruptedError("benchmark cancelled before the trial started")
-                    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT,
-                                            env=env, start_new_session=True)
-                    canceller.running.add(proc)
+        if canceller is None:
+            proc = _launch(server, job_path, log_path, env)
+        else:
+            with canceller.lock:  # cancel() sets stop before taking the lock: no worker escapes it
+                if canceller.stop.is_set():
+                    raise InterruptedError("benchmark cancelled before the trial started")
+                proc = _launch(server, job_path, log_path, env)
+                canceller.running.add(proc)
         try:
             rc = proc.wait(timeout=job.timeout_s)
         except subprocess.TimeoutExpired:
@@ -210,7 +220,9 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
             raise InterruptedError("benchmark cancelled while the trial ran")
         row = _row(spec, job, status, rc, result_path)
         failed = trial_failed(row)
-        row["run"] = {"engine": job.engine, "worker": f"{socket.gethostname()}:{proc.pid}", "started": started,
+        row["run"] = {"engine": job.engine, "worker": f"{socket.gethostname()}:{proc.pid}",
+                      "start_method": "spawn" if isinstance(proc, subprocess.Popen) else "forkserver",
+                      "started": started,
                       "finished": utc_now(), "wall_s": round(wall, 3), "threads": job.threads,
                       "session": job.session, "returncode": rc, "log": None, "recording": None,
                       "log_tail": _tail(log_path) if row["status"] != "ok" else None}
@@ -232,6 +244,43 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
         return row
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+_FALLBACK_WARNED: set[str] = set()
+
+
+def _forkserver(job: TrialJob, env: dict[str, str]) -> Any:
+    """The fork server for ``job`` (None for ``spawn``, or when the server cannot start: then spawn, warned once)."""
+    if job.start_method != "forkserver":
+        return None
+    from torm.bench.forkserver import ForkServerError, get_forkserver
+
+    try:
+        return get_forkserver(env, (job.trial_fn.partition(":")[0],))
+    except ForkServerError as exc:
+        if str(exc) not in _FALLBACK_WARNED:
+            _FALLBACK_WARNED.add(str(exc))
+            log.warning("start_method forkserver unavailable (%s); trials start as fresh interpreters (spawn)", exc)
+        return None
+
+
+def _launch(server: Any, job_path: Path, log_path: Path, env: dict[str, str]) -> Any:
+    """Start the worker of ``job_path`` (a Popen, or a forked worker with the same methods)."""
+    if server is not None:
+        from torm.bench.forkserver import ForkServerError
+
+        log_path.touch()
+        try:
+            return server.start_worker(str(job_path), str(log_path), env)
+        except ForkServerError as exc:  # the server died or refused: this trial starts fresh
+            log.warning("fork server failed (%s); %s starts as a fresh interpreter", exc, job_path)
+            job = json.loads(job_path.read_text())
+            job["parent_pid"] = os.getpid()
+            job_path.write_text(json.dumps(job))
+    cmd = [sys.executable, "-m", "torm.bench.worker", str(job_path)]
+    with open(log_path, "wb") as logf:
+        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=logf, stderr=subprocess.STDOUT, env=env,
+                                start_new_session=True)
 
 
 def prepare_driver_stop(spec: TrialSpec, job: TrialJob) -> Callable[[], Any] | None:

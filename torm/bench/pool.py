@@ -1,6 +1,7 @@
 """The local engine: up to ``workers`` isolated trial processes at a time on this machine.
 
-Each trial is its own ``python -m torm.bench.worker`` process (:func:`torm.bench.isolate.run_isolated`);
+Each trial is its own process (:func:`torm.bench.isolate.run_isolated`: a fork of a server that imported the
+libraries once, :mod:`torm.bench.forkserver`, or with ``spawn`` a fresh ``python -m torm.bench.worker``);
 a thread per slot waits on it, so the runner's main thread only collects rows.
 """
 
@@ -10,6 +11,7 @@ from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from typing import Any
 
+from torm.bench.forkserver import close_forkservers
 from torm.bench.isolate import Canceller, TrialJob, run_isolated
 from torm.bench.spec import TrialSpec
 
@@ -31,6 +33,7 @@ def pool_rows(specs: Sequence[TrialSpec], job: TrialJob, workers: int) -> Iterat
     finally:
         canceller.cancel()
         pool.shutdown(wait=True, cancel_futures=True)
+        close_forkservers()
 
 
 __all__ = ["pool_rows"]

@@ -223,7 +223,8 @@ def _run_locked(config: BenchConfig, out: Path, grid: list[TrialSpec], manifest:
     job = TrialJob(trial_fn=config.trial_fn, overrides=config.overrides, timeout_s=config.timeout_s,
                    threads=threads, record=config.record, recordings_dir=str(out.resolve() / "recordings"),
                    logs_dir=str(out.resolve() / "logs"), engine=config.engine, session=session["id"],
-                   stop_grace_s=config.stop_grace_s)
+                   stop_grace_s=config.stop_grace_s,
+                   start_method=config.start_method if config.engine == "pool" else "spawn")
     prior = [r for k, r in by_key.items() if k in {s.key for s in grid} and k not in retried]
     n_obj = sum(int(r.get("n_objects") or 0) for r in prior)
     n_ok = sum(int(r.get("n_success") or 0) for r in prior)

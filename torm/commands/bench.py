@@ -28,7 +28,7 @@ from torm.commands._common import add_parser, add_robot, count_arg, positive_flo
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from torm.bench.spec import DEFAULT_TRIAL_FN, ENGINES, METHODS, RECORD_MODES
+    from torm.bench.spec import DEFAULT_TRIAL_FN, ENGINES, METHODS, RECORD_MODES, START_METHODS
 
     p = add_parser(subparsers, "bench", __doc__,
                    help="run the closed-loop benchmark grid into a run folder (resumable)")
@@ -55,6 +55,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="failed: also run again trials whose row is crashed, timeout or error (old rows kept)")
     p.add_argument("--stop-grace", type=positive_float, default=10.0, metavar="S",
                    help="seconds a stopping worker gets between SIGTERM and SIGKILL (default 10)")
+    p.add_argument("--start-method", choices=START_METHODS, default="forkserver",
+                   help="how each trial's process starts (pool engine): forkserver (default: a fork of a server that "
+                        "imported the libraries once) or spawn (a fresh interpreter per trial)")
     p.add_argument("--threads", type=int, default=0, help="threads per trial (default: free cores / workers)")
     p.add_argument("--base-seed", type=int, default=0, help="mixed into every trial seed (default 0)")
     p.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN,
@@ -105,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         methods=parse_list(args.method) or ("torm",), workers=args.workers, engine=args.engine,
         ray_address=args.ray_address, timeout_s=args.timeout, record=args.record, overrides=trial_overrides(args),
         trial_fn=args.trial_fn, base_seed=args.base_seed, threads=args.threads, stop_grace_s=args.stop_grace,
+        start_method=args.start_method,
     )
     previous = signal.signal(signal.SIGTERM, _on_sigterm)  # SIGTERM stops the workers like Ctrl-C
     try:

@@ -1,0 +1,104 @@
+"""Trial workers forked from a preloaded server (torm.bench.forkserver) behave like spawned ones.
+
+The runner tests (test_bench_runner.py, test_bench_stop.py) run with the default ``forkserver`` start method
+and cover timeouts, crashes, segfaults, a SIGKILLed runner and the real arm's stop; here: the rows are the same
+as with ``spawn``, the row says how its worker started, a server that is not safe to fork from is refused and
+the trials fall back to ``spawn``, and the server leaves when its runner does.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from torm.bench import BenchConfig, build_grid, run_benchmark
+from torm.bench.forkserver import Forkserver, ForkServerError
+from torm.bench.isolate import THREAD_ENV
+from torm.bench.results import read_results
+from torm.errors import UnknownNameError
+
+TESTS_DIR = str(Path(__file__).resolve().parent)
+FAKE = "bench_fake_trials:run"
+
+
+@pytest.fixture(autouse=True)
+def _fake_importable(monkeypatch):
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (TESTS_DIR, os.environ.get("PYTHONPATH")) if p))
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.update({name: "1" for name in THREAD_ENV})
+    return env
+
+
+def _rows(out: Path) -> dict[str, dict]:
+    return {r["key"]: r for r in read_results(out / "results.jsonl").rows}
+
+
+def test_forked_workers_give_the_rows_spawned_ones_give(tmp_path):
+    rows = {}
+    for method in ("forkserver", "spawn"):
+        cfg = BenchConfig(suite="rw", scenarios=("rw1", "rw3"), trials=2, methods=("torm",), workers=2,
+                          trial_fn=FAKE, timeout_s=20.0, start_method=method, threads=1,
+                          overrides=("fake.crash=rw3/1", "fake.raise=rw1/0"))
+        run_benchmark(cfg, tmp_path / method, progress=False)
+        rows[method] = _rows(tmp_path / method)
+    assert {r["run"]["start_method"] for r in rows["forkserver"].values()} == {"forkserver"}
+    assert {r["run"]["start_method"] for r in rows["spawn"].values()} == {"spawn"}
+    strip = ("run", "traceback")
+    for key, row in rows["spawn"].items():
+        forked = rows["forkserver"][key]
+        assert {k: v for k, v in forked.items() if k not in strip} == {k: v for k, v in row.items() if k not in strip}
+    assert rows["forkserver"]["rw/rw3/1/torm"]["failure"] == "crashed"
+    assert "exited with code 3" in rows["forkserver"]["rw/rw3/1/torm"]["message"]
+
+
+def test_a_module_that_starts_a_thread_at_import_is_refused():
+    with pytest.raises(ForkServerError, match="threads after its imports"):
+        Forkserver(_env(), ("bench_fake_threaded",))
+
+
+def test_trials_fall_back_to_spawn_when_the_server_is_refused(tmp_path):
+    cfg = BenchConfig(suite="rw", scenarios=("rw1",), trials=1, methods=("torm",), workers=1, threads=1,
+                      trial_fn="bench_fake_threaded:run", timeout_s=20.0)
+    run_benchmark(cfg, tmp_path / "run", progress=False, validate=False)
+    (row,) = _rows(tmp_path / "run").values()
+    assert row["run"]["start_method"] == "spawn"
+    assert "should have been refused" in row["message"]  # the trial itself ran (and raised), in a spawned worker
+
+
+def test_unknown_start_method_is_a_named_error():
+    with pytest.raises(UnknownNameError, match="forkserver, spawn"):
+        BenchConfig(start_method="fork")
+
+
+def test_the_server_leaves_when_its_runner_goes_away():
+    server = Forkserver(_env(), ())
+    assert server.failed_imports == {}  # every preload imports in this environment
+    assert server.proc.stdin is not None
+    server.proc.stdin.close()  # what a dead runner's pipe looks like
+    assert server.proc.wait(timeout=10) == 0
+
+
+def test_a_forked_worker_reports_its_signal(tmp_path):
+    job = tmp_path / "job.json"
+    result = tmp_path / "result.json"
+    server = Forkserver(_env(), ())
+    try:
+        spec = build_grid(BenchConfig(scenarios=("rw1",), trial_fn=FAKE))[0]
+        job.write_text(json.dumps({"spec": spec.as_dict(), "overrides": ["fake.hang=rw1/0"], "trial_fn": FAKE,
+                                   "record_path": None, "result_path": str(result), "parent_pid": server.pid}))
+        worker = server.start_worker(str(job), str(tmp_path / "log"), _env())
+        with pytest.raises(subprocess.TimeoutExpired):
+            worker.wait(timeout=0.5)
+        worker.kill()
+        assert worker.wait(timeout=10) == -9
+        assert os.getpgid(server.pid) != os.getpgid(os.getpid())
+    finally:
+        server.close()
+    assert not result.exists()
