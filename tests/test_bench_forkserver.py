@@ -102,3 +102,11 @@ def test_a_forked_worker_reports_its_signal(tmp_path):
     finally:
         server.close()
     assert not result.exists()
+
+
+def test_more_than_one_thread_per_trial_spawns(tmp_path):
+    cfg = BenchConfig(suite="rw", scenarios=("rw1",), trials=1, methods=("torm",), workers=1, threads=2,
+                      trial_fn=FAKE, timeout_s=20.0)
+    run_benchmark(cfg, tmp_path / "run", progress=False)
+    (row,) = _rows(tmp_path / "run").values()
+    assert row["run"]["start_method"] == "spawn" and row["status"] == "ok"

@@ -253,6 +253,12 @@ def _forkserver(job: TrialJob, env: dict[str, str]) -> Any:
     """The fork server for ``job`` (None for ``spawn``, or when the server cannot start: then spawn, warned once)."""
     if job.start_method != "forkserver":
         return None
+    if job.threads != 1:  # OpenBLAS starts its pool at import with > 1 thread: the server would be refused
+        if "threads" not in _FALLBACK_WARNED:
+            _FALLBACK_WARNED.add("threads")
+            log.info("start_method forkserver needs one thread per trial (%d asked); trials start as fresh "
+                     "interpreters (spawn)", job.threads)
+        return None
     from torm.bench.forkserver import ForkServerError, get_forkserver
 
     try:

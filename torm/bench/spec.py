@@ -102,7 +102,7 @@ class BenchConfig:
         start_method: how a ``pool`` trial's process starts: ``forkserver`` (the default: a fork of a server
             that imported the heavy libraries once, :mod:`torm.bench.forkserver`; about 2.4 s less per trial on
             2 cores) or ``spawn`` (a fresh interpreter per trial). Not part of the run identity: the trial is
-            the same. ``ray`` always spawns.
+            the same. ``ray``, and more than one thread per trial, always spawn.
     """
 
     suite: str = "rw"
