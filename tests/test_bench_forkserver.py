@@ -110,3 +110,11 @@ def test_more_than_one_thread_per_trial_spawns(tmp_path):
     run_benchmark(cfg, tmp_path / "run", progress=False)
     (row,) = _rows(tmp_path / "run").values()
     assert row["run"]["start_method"] == "spawn" and row["status"] == "ok"
+
+
+def test_a_dead_server_is_a_named_error(tmp_path):
+    server = Forkserver(_env(), ())
+    server.proc.kill()
+    server.proc.wait()
+    with pytest.raises(ForkServerError):
+        server.start_worker(str(tmp_path / "job.json"), str(tmp_path / "log"), _env())

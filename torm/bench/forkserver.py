@@ -27,6 +27,7 @@ themselves the way a spawned worker does when its runner dies.
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import json
 import logging
@@ -130,6 +131,8 @@ def serve(modules: Sequence[str]) -> int:
     os.dup2(2, 1)
     failed = _preload(list(PRELOAD) + [m for m in modules if m not in PRELOAD])
     threads = thread_count()
+    gc.collect()
+    gc.freeze()  # the preloaded objects leave the collector's view: a child's collections do not touch (copy) them
 
     def send(msg: dict[str, Any]) -> None:
         os.write(proto, (json.dumps(msg) + "\n").encode())
@@ -295,9 +298,12 @@ class Forkserver:
             self._next += 1
             rid = self._next
             assert self.proc.stdin is not None
-            self.proc.stdin.write((json.dumps({"id": rid, "job": job_path, "log": log_path, "env": dict(env)})
-                                   + "\n").encode())
-            self.proc.stdin.flush()
+            try:
+                self.proc.stdin.write((json.dumps({"id": rid, "job": job_path, "log": log_path, "env": dict(env)})
+                                       + "\n").encode())
+                self.proc.stdin.flush()
+            except OSError as exc:  # the server died between two trials
+                raise ForkServerError(f"fork server (pid {self.proc.pid}) is gone: {exc}") from exc
             while rid not in self._replies and not self._dead:
                 self._cond.wait()
             reply = self._replies.pop(rid, None)
