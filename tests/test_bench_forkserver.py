@@ -63,13 +63,22 @@ def test_a_module_that_starts_a_thread_at_import_is_refused():
         Forkserver(_env(), ("bench_fake_threaded",))
 
 
-def test_trials_fall_back_to_spawn_when_the_server_is_refused(tmp_path):
-    cfg = BenchConfig(suite="rw", scenarios=("rw1",), trials=1, methods=("torm",), workers=1, threads=1,
+def test_trials_fall_back_to_spawn_when_the_server_is_refused(tmp_path, monkeypatch):
+    starts = []
+    real_init = Forkserver.__init__
+
+    def counting_init(self, *args, **kwargs):
+        starts.append(1)
+        real_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(Forkserver, "__init__", counting_init)
+    cfg = BenchConfig(suite="rw", scenarios=("rw1",), trials=3, methods=("torm",), workers=1, threads=1,
                       trial_fn="bench_fake_threaded:run", timeout_s=20.0)
     run_benchmark(cfg, tmp_path / "run", progress=False, validate=False)
-    (row,) = _rows(tmp_path / "run").values()
-    assert row["run"]["start_method"] == "spawn"
-    assert "should have been refused" in row["message"]  # the trial itself ran (and raised), in a spawned worker
+    rows = list(_rows(tmp_path / "run").values())
+    assert len(rows) == 3 and {r["run"]["start_method"] for r in rows} == {"spawn"}
+    assert all("should have been refused" in r["message"] for r in rows)  # the trials ran (and raised), spawned
+    assert len(starts) == 1  # a refused server is not started again for every trial
 
 
 def test_unknown_start_method_is_a_named_error():
@@ -118,3 +127,26 @@ def test_a_dead_server_is_a_named_error(tmp_path):
     server.proc.wait()
     with pytest.raises(ForkServerError):
         server.start_worker(str(tmp_path / "job.json"), str(tmp_path / "log"), _env())
+
+
+def test_a_forked_worker_has_devnull_as_stdin_and_its_log_as_stdout(tmp_path):
+    """The child's fds 0-2 are /dev/null and the trial's log, not the server's pipes."""
+    probe = tmp_path / "probe.py"
+    probe.write_text("import os, sys\n"
+                     "def run(spec, overrides=(), record_path=None):\n"
+                     "    print('fd0', os.readlink('/proc/self/fd/0'), flush=True)\n"
+                     "    print('stdin', repr(sys.stdin.read()), flush=True)\n"
+                     "    return {'n_objects': 0, 'n_success': 0, 'objects': []}\n")
+    server = Forkserver({**_env(), "PYTHONPATH": str(tmp_path)}, ())
+    try:
+        spec = build_grid(BenchConfig(scenarios=("rw1",), trial_fn=FAKE))[0]
+        job, log = tmp_path / "job.json", tmp_path / "log"
+        job.write_text(json.dumps({"spec": spec.as_dict(), "overrides": [], "trial_fn": "probe:run",
+                                   "record_path": None, "result_path": str(tmp_path / "result.json"),
+                                   "parent_pid": server.pid}))
+        assert server.start_worker(str(job), str(log), {**_env(), "PYTHONPATH": str(tmp_path)}).wait(30) == 0
+    finally:
+        server.close()
+    text = log.read_text()
+    assert "fd0 /dev/null" in text and "stdin ''" in text
+    assert json.loads((tmp_path / "result.json").read_text())["status"] == "ok"

@@ -90,16 +90,16 @@ def _child(req: dict[str, Any], keep_fds: Sequence[int]) -> None:
         signal.set_wakeup_fd(-1)
         for sig in (signal.SIGCHLD, signal.SIGTERM, signal.SIGINT, signal.SIGPIPE):
             signal.signal(sig, signal.SIG_DFL)
-        for fd in keep_fds:
+        for fd in keep_fds:  # the server's protocol and signal pipes (all > 2)
             with contextlib.suppress(OSError):
                 os.close(fd)
         null = os.open(os.devnull, os.O_RDONLY)
-        os.dup2(null, 0)
+        os.dup2(null, 0)  # the server's request pipe is not the trial's stdin
         out = os.open(req["log"], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         os.dup2(out, 1)
         os.dup2(out, 2)
-        os.close(null)
-        os.close(out)
+        for fd in {null, out} - {0, 1, 2}:
+            os.close(fd)
         os.environ.clear()
         os.environ.update(req["env"])
         if "numpy" in sys.modules:
@@ -181,7 +181,7 @@ def serve(modules: Sequence[str]) -> int:
                 sys.stderr.flush()
                 pid = os.fork()
                 if pid == 0:
-                    _child(req, (proto, rfd, wfd, stdin.fileno()))
+                    _child(req, (proto, rfd, wfd))
                 children.add(pid)
                 send({"id": req["id"], "pid": pid})
 
@@ -345,23 +345,31 @@ def _wait_gone(worker: ForkedWorker, poll_s: float = 0.1) -> None:
 
 _SERVERS: dict[tuple[tuple[str, str], ...], Forkserver] = {}
 _SERVERS_LOCK = threading.Lock()
+_REFUSED: dict[tuple[tuple[str, str], ...], str] = {}
 
 
 def get_forkserver(env: Mapping[str, str], modules: Sequence[str] = ()) -> Forkserver:
     """The fork server for this environment and these preloads (started on first use, shared by threads)."""
     key = tuple(sorted(env.items())) + tuple(("module", m) for m in modules)
     with _SERVERS_LOCK:
+        if key in _REFUSED:  # not tried again for every trial: a start costs the imports it would save
+            raise ForkServerError(_REFUSED[key])
         server = _SERVERS.get(key)
         if server is None or server._dead:
-            server = _SERVERS[key] = Forkserver(env, modules)
+            try:
+                server = _SERVERS[key] = Forkserver(env, modules)
+            except ForkServerError as exc:
+                _REFUSED[key] = str(exc)
+                raise
         return server
 
 
 def close_forkservers() -> None:
-    """Stop every fork server this process started (the pool calls it when a benchmark ends)."""
+    """Stop every fork server this process started (the pool calls it when a benchmark ends); forget refusals."""
     with _SERVERS_LOCK:
         servers = list(_SERVERS.values())
         _SERVERS.clear()
+        _REFUSED.clear()
     for server in servers:
         server.close()
 
