@@ -150,3 +150,15 @@ def test_a_forked_worker_has_devnull_as_stdin_and_its_log_as_stdout(tmp_path):
     text = log.read_text()
     assert "fd0 /dev/null" in text and "stdin ''" in text
     assert json.loads((tmp_path / "result.json").read_text())["status"] == "ok"
+
+
+def test_threads_are_counted_natively_and_unknown_counts_as_unsafe(monkeypatch):
+    from torm.bench import forkserver
+
+    assert forkserver.thread_count() >= 1  # pytest's own threads, native ones included
+
+    def no_proc(path):
+        raise FileNotFoundError(path)
+
+    monkeypatch.setattr(forkserver.os, "listdir", no_proc)
+    assert forkserver.thread_count() == 0  # never 1: the server would fork without knowing

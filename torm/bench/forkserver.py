@@ -62,11 +62,12 @@ class ForkServerError(RuntimeError):
 
 
 def thread_count() -> int:
-    """Threads of this process (from ``/proc/self/task``; 1 where that cannot be read is never assumed)."""
+    """Threads of this process, native ones included (``/proc/self/task``); 0 where that cannot be read (no
+    ``/proc``: Python's own thread count would miss native threads), which the server treats as not safe."""
     try:
         return len(os.listdir("/proc/self/task"))
     except OSError:
-        return threading.active_count()
+        return 0
 
 
 # ---------------------------------------------------------------------------------------------------- server
@@ -249,8 +250,9 @@ class Forkserver:
         self.failed_imports: dict[str, str] = hello.get("failed") or {}
         if int(hello.get("threads", 0)) != 1:
             self.close()
-            raise ForkServerError(f"the fork server has {hello.get('threads')} threads after its imports (a module "
-                                  "starts a thread at import): forking from it is not safe; use start_method='spawn'")
+            why = ("cannot count its threads (no /proc)" if not hello.get("threads") else
+                   f"has {hello.get('threads')} threads after its imports (a module starts a thread at import)")
+            raise ForkServerError(f"the fork server {why}: forking from it is not safe; use start_method='spawn'")
         for name, why in self.failed_imports.items():
             log.info("fork server: %s not preloaded (%s); trials import it themselves", name, why)
         self._reader = threading.Thread(target=self._read_loop, name="forkserver-reader", daemon=True)
