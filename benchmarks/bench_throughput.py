@@ -44,7 +44,7 @@ from torm.bench.report import (  # noqa: E402
     timing_means,
 )
 from torm.bench.results import cpu_model, package_versions  # noqa: E402
-from torm.bench.spec import DEFAULT_TRIAL_FN, parse_list  # noqa: E402
+from torm.bench.spec import DEFAULT_TRIAL_FN, START_METHODS, parse_list  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -167,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per trial")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--trial-fn", default=DEFAULT_TRIAL_FN)
-    ap.add_argument("--start-method", choices=("forkserver", "spawn"), default="forkserver",
+    ap.add_argument("--start-method", choices=START_METHODS, default="forkserver",
                     help="how each trial's process starts (default forkserver, as torm bench)")
     ap.add_argument("--run-dir", default=str(RUN_DIR), help=f"run folder (default {RUN_DIR})")
     ap.add_argument("--results-dir", default=str(RESULTS), help=f"where the result files go (default {RESULTS})")

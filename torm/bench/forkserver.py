@@ -194,10 +194,9 @@ class ForkedWorker:
     """The runner's handle of a forked trial worker: the part of :class:`subprocess.Popen` the runner uses
     (``pid``, ``returncode``, ``poll``, ``wait``, ``send_signal``, ``terminate``, ``kill``)."""
 
-    def __init__(self, server: Forkserver, pid: int) -> None:
+    def __init__(self, pid: int) -> None:
         self.pid = pid
         self.returncode: int | None = None
-        self._server = server
         self._done = threading.Event()
 
     def _finish(self, rc: int) -> None:
@@ -235,12 +234,11 @@ class Forkserver:
 
     def __init__(self, env: Mapping[str, str], modules: Sequence[str] = ()) -> None:
         self.env = dict(env)
-        self._lock = threading.Lock()
         self._next = 0
         self._replies: dict[int, dict[str, Any]] = {}
         self._workers: dict[int, ForkedWorker] = {}
         self._early_exits: dict[int, int] = {}
-        self._cond = threading.Condition(self._lock)
+        self._cond = threading.Condition()
         self._dead: str | None = None
         self.proc = subprocess.Popen([sys.executable, "-m", "torm.bench.forkserver", *modules],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=self.env,
@@ -313,7 +311,7 @@ class Forkserver:
                 raise ForkServerError(self._dead or "fork server gave no reply")
             if "error" in reply:
                 raise ForkServerError(reply["error"])
-            worker = ForkedWorker(self, int(reply["pid"]))
+            worker = ForkedWorker(int(reply["pid"]))
             if worker.pid in self._early_exits:
                 worker._finish(self._early_exits.pop(worker.pid))
             else:
@@ -351,7 +349,9 @@ _REFUSED: dict[tuple[tuple[str, str], ...], str] = {}
 
 
 def get_forkserver(env: Mapping[str, str], modules: Sequence[str] = ()) -> Forkserver:
-    """The fork server for this environment and these preloads (started on first use, shared by threads)."""
+    """The fork server for this environment and these preloads (started on first use, shared by threads).
+    A server that was refused is not started again (until :func:`close_forkservers`): ForkServerError at once,
+    after one warning."""
     key = tuple(sorted(env.items())) + tuple(("module", m) for m in modules)
     with _SERVERS_LOCK:
         if key in _REFUSED:  # not tried again for every trial: a start costs the imports it would save
@@ -362,6 +362,8 @@ def get_forkserver(env: Mapping[str, str], modules: Sequence[str] = ()) -> Forks
                 server = _SERVERS[key] = Forkserver(env, modules)
             except ForkServerError as exc:
                 _REFUSED[key] = str(exc)
+                log.warning("start_method forkserver unavailable (%s); trials start as fresh interpreters (spawn)",
+                            exc)
                 raise
         return server
 

@@ -246,27 +246,16 @@ def run_isolated(spec: TrialSpec, job: TrialJob, canceller: Canceller | None = N
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-_FALLBACK_WARNED: set[str] = set()
-
-
 def _forkserver(job: TrialJob, env: dict[str, str]) -> Any:
-    """The fork server for ``job`` (None for ``spawn``, or when the server cannot start: then spawn, warned once)."""
-    if job.start_method != "forkserver":
-        return None
-    if job.threads != 1:  # OpenBLAS starts its pool at import with > 1 thread: the server would be refused
-        if "threads" not in _FALLBACK_WARNED:
-            _FALLBACK_WARNED.add("threads")
-            log.info("start_method forkserver needs one thread per trial (%d asked); trials start as fresh "
-                     "interpreters (spawn)", job.threads)
+    """The fork server for ``job``; None for ``spawn``, for more than one thread per trial (OpenBLAS starts its
+    pool at import then, so the server would be refused) and when the server is refused (it warns once)."""
+    if job.start_method != "forkserver" or job.threads != 1:
         return None
     from torm.bench.forkserver import ForkServerError, get_forkserver
 
     try:
         return get_forkserver(env, (job.trial_fn.partition(":")[0],))
-    except ForkServerError as exc:
-        if str(exc) not in _FALLBACK_WARNED:
-            _FALLBACK_WARNED.add(str(exc))
-            log.warning("start_method forkserver unavailable (%s); trials start as fresh interpreters (spawn)", exc)
+    except ForkServerError:
         return None
 
 

@@ -100,9 +100,9 @@ class BenchConfig:
         stop_grace_s: a worker that must stop (timeout, Ctrl-C, SIGTERM) gets SIGTERM and this long to run
             its stop path (a real backend cancels the motion and disables the arm) before SIGKILL.
         start_method: how a ``pool`` trial's process starts: ``forkserver`` (the default: a fork of a server
-            that imported the heavy libraries once, :mod:`torm.bench.forkserver`; about 2.4 s less per trial on
-            2 cores) or ``spawn`` (a fresh interpreter per trial). Not part of the run identity: the trial is
-            the same. ``ray``, and more than one thread per trial, always spawn.
+            that imported the heavy libraries once, :mod:`torm.bench.forkserver`; the 2.4-3.5 s of imports a
+            trial paid on 2 cores are gone) or ``spawn`` (a fresh interpreter per trial). Not part of the run
+            identity: the trial is the same. ``ray``, and more than one thread per trial, always spawn.
     """
 
     suite: str = "rw"
